@@ -1,0 +1,25 @@
+"""Exception hierarchy. The library raises these and never prints or exits; only ``dfc.cli``
+turns them into one-line messages and exit codes.
+
+Each error inherits from the built-in it refines, so callers may catch either
+(``except ValueError`` keeps working)."""
+
+
+class DfcError(Exception):
+    """Base class of every error dfc raises on purpose."""
+
+
+class CurveError(DfcError, ValueError):
+    """A curves file (SVG / JSON / diffusion-curve XML) is unreadable or malformed."""
+
+
+class MeshError(DfcError, ValueError):
+    """A triangulation cannot be built or breaks one of its invariants (see ``Mesh.validate``)."""
+
+
+class InputError(DfcError, ValueError):
+    """An image or sample input is unreadable or unusable (NaN pixels, mismatched domain, ...)."""
+
+
+class FormatError(DfcError, ValueError):
+    """A ``.dfield`` file is truncated, corrupt, hostile or of an unsupported version."""
