@@ -1,0 +1,17 @@
+"""Shared fixtures. ``shared_data`` points at the third-party inputs beside the checkout
+(``../shared/data``) and skips the test cleanly when they are absent (a user's clone)."""
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+SAMPLES = REPO / "samples"
+
+
+@pytest.fixture
+def shared_data() -> Path:
+    if not SHARED_DATA.is_dir():
+        pytest.skip("../shared/data is absent")
+    return SHARED_DATA
