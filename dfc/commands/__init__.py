@@ -1,0 +1,1 @@
+"""One module per ``dfc`` command, each exposing a click command named ``command``."""
