@@ -17,7 +17,18 @@ class Tolerances:
     area_rel: float = 1e-9
     """Relative tolerance on the sum of triangle areas against the domain area in ``Mesh.validate``."""
     degenerate_rel: float = 1e-14
-    """A triangle whose doubled area is below this (× diagonal²) counts as degenerate."""
+    """A triangle whose height over its longest edge is below this (× diagonal) counts as degenerate."""
+    svg_arc_rel: float = 1e-6
+    """SVG elliptical arcs become cubics that stray at most this far (× diagonal) from the exact arc."""
+    touch_rel: float = 1e-10
+    """Gap (× diagonal) below which shapes count as touching: tangent triangles and line pieces may touch
+    in the triangulation's conflict loop, and a curve may leave its triangle by this much in ``Mesh.validate``."""
+    distinct_rel: float = 1e-9
+    """Within one Bézier piece, control points closer than this (× the control polygon's size) coincide
+    (end tangents); also the relative zero for curvature and tangent-crossing tests in ``dfc.bezier``."""
+    min_piece_rel: float = 1e-6
+    """Clean-up splits no curved piece smaller than this (× diagonal); one that still is not a graph over its
+    chord (a cusp) becomes a line."""
 
 
 tol = Tolerances()

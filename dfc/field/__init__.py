@@ -1,0 +1,7 @@
+"""The discontinuity-aware feature field (DESIGN §5): point location, bank layout, side test,
+interpolation, and the ``FeatureField`` module that ties them together."""
+
+from .feature_field import FeatureField
+from .layout import Layout, build_layout
+
+__all__ = ["FeatureField", "Layout", "build_layout"]

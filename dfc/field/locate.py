@@ -1,0 +1,164 @@
+"""Point location on a triangulation of a rectangle: which triangle holds each query (vectorised).
+
+A uniform grid of cells covers the domain; every cell lists (CSR) the triangles that overlap it,
+found by an exact separating-axis test with a small safety margin, ordered by how deep the cell
+centre lies in them (largest minimum barycentric coordinate first, then triangle index), so the
+first candidate usually holds the query. A query reads its cell's list: a cell with one candidate
+resolves with one gather; otherwise candidates are tested in rounds over the still-unresolved
+queries, and the first whose barycentric coordinates are all ``>= 0`` wins (ties on shared edges and
+vertices thus go deterministically to the earlier candidate of the query's cell).
+When rounding makes every candidate miss, the candidate with the largest minimum barycentric
+coordinate is taken. Queries outside the domain rectangle are clamped onto it first.
+
+The hot path is torch (buffers move with ``.to(device)``), geometry in float64.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..errors import MeshError
+
+__all__ = ["PointLocator", "CELLS_PER_TRIANGLE"]
+
+CELLS_PER_TRIANGLE = 8.0
+"""Grid resolution: about this many cells per triangle (fewer candidates per cell vs. a larger table)."""
+
+_MARGIN = 1e-9
+"""Cell/triangle overlap is kept within this fraction of the cell size, so boundary rounding never drops a triangle."""
+
+
+def _cell_pairs(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray, origin: np.ndarray, h: float,
+                shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """All (triangle, cell) pairs whose closed sets overlap (within the margin).
+
+    v0, v1, v2 : (T, 2) float64 counter-clockwise corners; origin (2,), h cell size, shape (ny, nx).
+    Returns tri (M,) int64 and cell (M,) int64 (row-major ``iy * nx + ix``).
+    """
+    ny, nx = shape
+    corners = np.stack([v0, v1, v2], axis=1)
+    lo = np.floor((corners.min(1) - origin) / h).astype(np.int64)
+    hi = np.floor((corners.max(1) - origin) / h).astype(np.int64)
+    lo = np.clip(lo, 0, [nx - 1, ny - 1])
+    hi = np.clip(hi, 0, [nx - 1, ny - 1])
+    wx, wy = hi[:, 0] - lo[:, 0] + 1, hi[:, 1] - lo[:, 1] + 1
+    count = wx * wy
+    tri = np.repeat(np.arange(len(v0)), count)
+    local = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    ix = lo[tri, 0] + local % wx[tri]
+    iy = lo[tri, 1] + local // wx[tri]
+    bx0, by0 = origin[0] + ix * h, origin[1] + iy * h
+    keep = np.ones(len(tri), bool)
+    for a, b in ((v0, v1), (v1, v2), (v2, v0)):
+        ex, ey = (b - a)[tri, 0], (b - a)[tri, 1]
+        # Inside is cross(e, q - a) >= 0; its maximum over the cell is at the corner picked by -ey, ex.
+        qx = bx0 + np.where(-ey > 0, h, 0.0)
+        qy = by0 + np.where(ex > 0, h, 0.0)
+        best = ex * (qy - a[tri, 1]) - ey * (qx - a[tri, 0])
+        keep &= best >= -_MARGIN * h * np.hypot(ex, ey)
+    return tri[keep], (iy * nx + ix)[keep]
+
+
+class PointLocator(nn.Module):
+    """Grid-accelerated point location.
+
+    vertices : (V, 2) float64; triangles : (T, 3) int64 counter-clockwise;
+    domain : (x0, y0, x1, y1) the rectangle the triangles cover.
+    """
+
+    def __init__(self, vertices: np.ndarray, triangles: np.ndarray, domain: tuple[float, float, float, float],
+                 cells_per_triangle: float = CELLS_PER_TRIANGLE):
+        super().__init__()
+        verts = np.asarray(vertices, np.float64)
+        tris = np.asarray(triangles, np.int64)
+        if len(tris) == 0:
+            raise MeshError("point location: the mesh has no triangles")
+        x0, y0, x1, y1 = (float(d) for d in domain)
+        width, height = x1 - x0, y1 - y0
+        h = float(np.sqrt(width * height / (cells_per_triangle * len(tris))))
+        nx, ny = max(1, int(np.ceil(width / h))), max(1, int(np.ceil(height / h)))
+        v0, v1, v2 = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
+        origin = np.array([x0, y0])
+        tri, cell = _cell_pairs(v0, v1, v2, origin, h, (ny, nx))
+        e1, e2 = v1 - v0, v2 - v0
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        if np.any(det <= 0):
+            bad = int(np.flatnonzero(det <= 0)[0])
+            raise MeshError(f"point location: triangle {bad} is degenerate or clockwise")
+        # Barycentric map per triangle: (l1, l2) = inv([v1 - v0, v2 - v0]) @ (x - v0).
+        inv = np.stack([e2[:, 1], -e2[:, 0], -e1[:, 1], e1[:, 0]], axis=1) / det[:, None]
+        centre = origin + (np.stack([cell % nx, cell // nx], axis=1) + 0.5) * h
+        d = centre - v0[tri]
+        l1 = inv[tri, 0] * d[:, 0] + inv[tri, 1] * d[:, 1]
+        l2 = inv[tri, 2] * d[:, 0] + inv[tri, 3] * d[:, 1]
+        depth = np.minimum(np.minimum(l1, l2), 1.0 - l1 - l2)
+        order = np.lexsort((tri, -depth, cell))
+        tri, cell = tri[order], cell[order]
+        count = np.bincount(cell, minlength=nx * ny)
+        if np.any(count == 0):
+            empty = int(np.flatnonzero(count == 0)[0])
+            cx, cy = x0 + (empty % nx + 0.5) * h, y0 + (empty // nx + 0.5) * h
+            raise MeshError(f"point location: the triangles do not cover the domain near ({cx:.6g}, {cy:.6g})")
+        self.domain = (x0, y0, x1, y1)
+        self.register_buffer("lower", torch.tensor([x0, y0], dtype=torch.float64))
+        self.register_buffer("upper", torch.tensor([x1, y1], dtype=torch.float64))
+        self.cell_size = h
+        self.grid_shape = (ny, nx)
+        self.max_candidates = int(count.max())
+        self.register_buffer("cell_start", torch.from_numpy((np.cumsum(count) - count).astype(np.int32)))
+        self.register_buffer("cell_count", torch.from_numpy(count.astype(np.int32)))
+        self.register_buffer("cell_triangles", torch.from_numpy(tri.astype(np.int32)))
+        self.register_buffer("tri_affine", torch.from_numpy(np.concatenate([v0, inv], axis=1)))  # (T, 6)
+
+    def clamp(self, xy: torch.Tensor) -> torch.Tensor:
+        """Clamp (N, 2) float64 points onto the domain rectangle (gradient zero outside)."""
+        return xy.clamp(self.lower, self.upper)
+
+    def barycentric(self, xy: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
+        """Barycentric coordinates (N, 3) float64 of points (N, 2) float64 in triangles (N,) int64 (differentiable)."""
+        m = self.tri_affine.index_select(0, tri)
+        dx, dy = xy[:, 0] - m[:, 0], xy[:, 1] - m[:, 1]
+        l1 = m[:, 2] * dx + m[:, 3] * dy
+        l2 = m[:, 4] * dx + m[:, 5] * dy
+        return torch.stack([1.0 - l1 - l2, l1, l2], dim=1)
+
+    @torch.no_grad()
+    def forward(self, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Locate points xy (N, 2) float64 (already clamped): triangle (N,) int64 holding each and the
+        barycentric coordinates (N, 3) float64 there (not differentiable; see ``barycentric``)."""
+        x0, y0, _, _ = self.domain
+        ny, nx = self.grid_shape
+        ix = torch.floor((xy[:, 0] - x0) / self.cell_size).long().clamp_(0, nx - 1)
+        iy = torch.floor((xy[:, 1] - y0) / self.cell_size).long().clamp_(0, ny - 1)
+        cell = iy * nx + ix
+        start = self.cell_start.index_select(0, cell)
+        tri = self.cell_triangles.index_select(0, start).long()
+        bary = self.barycentric(xy, tri)
+        count = self.cell_count.index_select(0, cell)
+        miss = torch.nonzero((bary.amin(1) < 0) & (count > 1)).squeeze(1)
+        if miss.numel() == 0:
+            return tri, bary
+        # Later candidates for the misses, in rounds over the still-unresolved ones.
+        start, count = start[miss], count[miss]
+        best_bary = bary[miss]
+        best_tri = tri[miss]
+        best = best_bary.amin(1)
+        active = torch.arange(miss.numel(), device=xy.device)
+        for k in range(1, self.max_candidates):
+            active = active[count[active] > k]
+            if active.numel() == 0:
+                break
+            cand = self.cell_triangles.index_select(0, start[active] + k).long()
+            b = self.barycentric(xy.index_select(0, miss[active]), cand)
+            score = b.amin(1)
+            better = score > best[active]
+            upd = active[better]
+            best[upd] = score[better]
+            best_tri[upd] = cand[better]
+            best_bary[upd] = b[better]
+            active = active[score < 0]
+        tri[miss] = best_tri
+        bary[miss] = best_bary
+        return tri, bary
