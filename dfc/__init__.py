@@ -1,18 +1,49 @@
-"""dfc — the discontinuity-aware field codec."""
+"""dfc — the discontinuity-aware field codec.
+
+The torch-based parts (``FeatureField``, ``FieldModel``, ``fit_image``, ``fit_samples``, ``load``,
+``encode_image``, ...) are imported on first use, so that ``import dfc`` and torch-free commands
+(``dfc stats``, ``dfc mesh``) start fast.
+"""
+
+__version__ = "0.1.0"
+
+import importlib
 
 from .curves import Curves, SideValues, read_curves
 from .errors import CurveError, DfcError, FormatError, InputError, MeshError
 from .mesh import Mesh
+from .triangulate import triangulate
+
+_LAZY = {
+    "FeatureField": "dfc.field.feature_field",
+    "FieldModel": "dfc.model",
+    "fit_image": "dfc.fit",
+    "fit_samples": "dfc.fit",
+    "EncodeSettings": "dfc.codec",
+    "encode_image": "dfc.codec",
+    "encode_samples": "dfc.codec",
+    "load": "dfc.codec",
+    "loads": "dfc.codec",
+    "read_image": "dfc.imageio",
+    "render": "dfc.render",
+}
 
 __all__ = [
     "Curves",
     "SideValues",
     "read_curves",
     "Mesh",
+    "triangulate",
     "DfcError",
     "CurveError",
     "MeshError",
     "InputError",
     "FormatError",
+    *_LAZY,
 ]
-__version__ = "0.1.0"
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'dfc' has no attribute {name!r}")

@@ -1,19 +1,35 @@
 """The codec pipeline: image + curves -> mesh -> fit -> ``.dfield``, and ``.dfield`` -> model.
 
-This is the glue the CLI and the Python API share; each step lives in its own module.
+This is the glue the CLI and the Python API share; each step lives in its own module. The fit runs on
+the mesh exactly as the decoder will see it (``build_mesh``), the last steps run quantisation-aware, and
+the reported PSNR is measured on the written bytes decoded again, so the file decodes to what it reports.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
+import torch
 
+from . import __version__
 from .curves import Curves
 from .errors import InputError
+from .mesh import Mesh
+
+if TYPE_CHECKING:
+    from .container import DfieldContents
+
+__all__ = ["EncodeSettings", "EncodeReport", "build_mesh", "check_domain", "encode_image", "encode_samples",
+           "fit_curves_to_domain", "from_contents", "load", "loads", "to_contents"]
+
+TARGET_BYTES_PROBES = 12
+"""Triangulations tried at most when sizing the mesh to a byte target."""
+QUERY_BLOCK = 1 << 18
+"""Points evaluated per call when measuring a decoded file at scattered positions."""
 
 
 @dataclass
@@ -70,3 +86,234 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
         f"the curves' domain {tuple(round(v, 6) for v in curves.domain)} does not match the image's "
         f"[0, {width}] × [0, {height}]; pass --fit-curves-to-image to scale the curves onto the image"
     )
+
+
+# ----------------------------------------------------------------------------------------------- mesh
+def build_mesh(curves: Curves, settings: EncodeSettings, *, stats: dict | None = None) -> Mesh:
+    """Triangulate ``curves`` with the settings' size knobs and return the mesh as the decoder will see it
+    (Draco-quantised with ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on."""
+    from .meshcodec import roundtrip_mesh
+    from .triangulate import triangulate
+
+    mesh = triangulate(curves, max_area=settings.max_area, edge_length=settings.edge_length,
+                       max_triangles=settings.max_triangles, stats=stats)
+    return roundtrip_mesh(mesh, settings.mesh_bits)
+
+
+# ----------------------------------------------------------------------------------------------- model <-> file
+_ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
+
+
+def to_contents(model, encoder: dict | None = None) -> DfieldContents:
+    """The ``.dfield`` contents of a fitted ``FieldModel`` (quantised values when its quantised mode is on).
+
+    encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
+    """
+    from .container import DfieldContents
+
+    config = model.config()
+    header = {
+        "domain": [float(v) for v in model.field.mesh.domain],
+        "channels": list(config["channels"]),
+        "value_transform": config["transform"],
+        "times": config["times"],
+        "model": {k: config[k] for k in _ARCH_KEYS},
+        "encoder": dict(encoder or {}),
+    }
+    with torch.no_grad():
+        features = model.field.bank.detach().cpu().numpy().astype(np.float32)
+        mlp = {}
+        for i, lin in enumerate(model.decoder.linears()):
+            mlp[f"layers.{i}.weight"] = lin.weight.detach().cpu().numpy().astype(np.float32)
+            mlp[f"layers.{i}.bias"] = lin.bias.detach().cpu().numpy().astype(np.float32)
+    return DfieldContents(header=header, mesh=model.field.mesh, features=features, mlp=mlp)
+
+
+def from_contents(contents: DfieldContents, *, device: str = "cpu"):
+    """Rebuild the ``FieldModel`` a file describes. Raises ``FormatError`` when the header's model does
+    not match the stored features or weights."""
+    from .errors import FormatError
+    from .model import FieldModel
+
+    h = contents.header
+    arch = h["model"]
+    missing = [k for k in _ARCH_KEYS if k not in arch]
+    if missing:
+        raise FormatError(f"HEAD: model lacks {missing}")
+    config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": h["value_transform"], "channels": h["channels"],
+              "n_slices": int(contents.features.shape[0]), "times": h["times"]}
+    model = FieldModel.from_config(contents.mesh, config, device=device)
+    with torch.no_grad():
+        bank = torch.from_numpy(np.ascontiguousarray(contents.features))
+        if tuple(bank.shape) != tuple(model.field.bank.shape):
+            raise FormatError(f"FEAT: bank shape {tuple(bank.shape)}, the model needs {tuple(model.field.bank.shape)}")
+        model.field.bank.copy_(bank)
+        linears = model.decoder.linears()
+        expected = {f"layers.{i}.{p}" for i in range(len(linears)) for p in ("weight", "bias")}
+        if set(contents.mlp) != expected:
+            raise FormatError(f"MLPW: tensors {sorted(contents.mlp)}, the model needs {sorted(expected)}")
+        for i, lin in enumerate(linears):
+            for p in ("weight", "bias"):
+                w = torch.from_numpy(contents.mlp[f"layers.{i}.{p}"])
+                target = getattr(lin, p)
+                if tuple(w.shape) != tuple(target.shape):
+                    raise FormatError(f"MLPW: layers.{i}.{p} has shape {tuple(w.shape)}, expected {tuple(target.shape)}")
+                target.copy_(w)
+    model.header = h
+    model.eval()
+    return model
+
+
+def loads(blob: bytes, *, device: str = "cpu"):
+    """``FieldModel`` from the bytes of a ``.dfield`` file (fully checked; ``FormatError`` if damaged)."""
+    from .container import decode_dfield
+
+    return from_contents(decode_dfield(blob), device=device)
+
+
+def load(path: str | Path, *, device: str = "cpu"):
+    """``FieldModel`` from a ``.dfield`` file: ``model(xy)``, ``model.features(xy)``, ``model.render(w, h)``."""
+    from .container import read_dfield
+
+    return from_contents(read_dfield(path), device=device)
+
+
+# ----------------------------------------------------------------------------------------------- encode
+def _size_mesh(curves: Curves, settings: EncodeSettings, channels: list[str]) -> Mesh:
+    """The decoder-view mesh, sized to ``settings.target_bytes`` when given (else the explicit knobs)."""
+    if settings.target_bytes is None:
+        return build_mesh(curves, settings)
+    from .container import encode_dfield
+    from .field.feature_field import FeatureField
+    from .model import FieldModel
+
+    def file_bytes(n_triangles: int) -> tuple[int, Mesh]:
+        s = replace(settings, max_triangles=n_triangles, max_area=None, edge_length=None)
+        mesh = build_mesh(curves, s)
+        # a fitted bank is about as incompressible as a random one at the same bit depth
+        model = FieldModel(FeatureField(mesh, dim=settings.dim, seed=settings.seed), channels)
+        with torch.no_grad():
+            model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
+        blob, _ = encode_dfield(to_contents(model), feature_bits=settings.feature_bits)
+        return len(blob), mesh
+
+    lo, hi, best = 2, None, None
+    n = 2000
+    for _ in range(TARGET_BYTES_PROBES):
+        size, mesh = file_bytes(n)
+        if size <= settings.target_bytes:
+            lo, best = n, mesh
+            n = n * 2 if hi is None else (n + hi) // 2
+        else:
+            hi = n
+            n = max(2, (lo + n) // 2)
+        if hi is not None and hi - lo <= max(8, lo // 50):
+            break
+    if best is None:
+        raise InputError(f"target of {settings.target_bytes} bytes is too small: even the coarsest mesh the curves "
+                         f"allow needs {size} bytes")
+    return best
+
+
+def _encoder_info(settings: EncodeSettings, source: str, extra: dict) -> dict:
+    return {"software": f"dfc {__version__}", "source": source, **asdict(settings), **extra}
+
+
+def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
+            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], data_range: float):
+    """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth``."""
+    from .container import encode_dfield
+    from .metrics import psnr
+
+    clock = time.perf_counter()
+    blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits)
+    decoded = loads(blob, device=settings.device)
+    seconds["write_s"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    reference, test = truth(decoded)
+    seconds["verify_s"] = time.perf_counter() - clock
+    mesh = decoded.field.mesh
+    report = EncodeReport(
+        chunk_bytes=sizes, total_bytes=len(blob), bits_per_pixel=8.0 * len(blob) / n_pixels,
+        psnr=psnr(reference, test, data_range=data_range), data_range=data_range,
+        n_vertices=mesh.n_vertices, n_triangles=mesh.n_triangles, n_features=decoded.field.n_features,
+        seconds=seconds,
+    )
+    return blob, report
+
+
+def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
+                 fit_curves: bool = False, callback: Callable[[int, float, float], None] | None = None):
+    """Encode a raster with its discontinuity curves.
+
+    Parameters
+    ----------
+    image : ``dfc.imageio.Image`` or (H, W, C) float array of linear values covering [0, W] × [0, H]
+    curves : Curves over the same domain (or any domain with ``fit_curves=True``, scaled onto the image)
+    settings : EncodeSettings (defaults when None)
+    callback : ``callback(step, loss, batch_psnr)`` after each optimiser step
+
+    Returns
+    -------
+    (blob, report): the ``.dfield`` bytes and an ``EncodeReport`` whose ``psnr`` is of ``blob`` decoded and
+    rendered at the input's pixel centres, against the input (data range 1 for LDR, the input's span for HDR).
+    """
+    from .fit import _check_pixels, fit_image
+    from .render import render
+
+    settings = settings or EncodeSettings()
+    pixels = _check_pixels(image)
+    h, w, c = pixels.shape
+    channels = getattr(image, "channels", None)
+    curves = check_domain(curves, w, h, fit_curves)
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+    mesh = _size_mesh(curves, settings, channels or [f"c{k}" for k in range(c)])
+    seconds["mesh_s"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    model = fit_image(image, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
+                      seed=settings.seed, loss=settings.loss, device=settings.device, qat_steps=settings.qat_steps,
+                      feature_bits=settings.feature_bits, callback=callback, channels=channels)
+    seconds["fit_s"] = time.perf_counter() - clock
+    hdr = float(pixels.max()) > 1.0
+    data_range = float(pixels.max() - pixels.min()) if hdr else 1.0
+    info = _encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h, "hdr": hdr})
+    return _finish(model, settings, info, seconds, w * h, lambda m: (pixels, render(m, w, h)), max(data_range, 1e-12))
+
+
+def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = None, *,
+                   callback: Callable[[int, float, float], None] | None = None):
+    """Encode a scattered sample set (``dfc.samples.SampleSet``) with its discontinuity curves.
+
+    The samples' domain (when given) must equal the curves'. ``report.psnr`` is of the decoded file at
+    the sample positions against the sample values (data range: the values' span), and
+    ``bits_per_pixel`` counts bits per sample.
+    """
+    from .fit import fit_samples
+
+    settings = settings or EncodeSettings()
+    domain = getattr(samples, "domain", None)
+    if domain is not None and not np.allclose(domain, curves.domain, rtol=1e-9, atol=0):
+        raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
+    values = np.asarray(samples.values, dtype=np.float32)
+    channels = samples.channels or [f"c{k}" for k in range(values.shape[1])]
+    seconds: dict[str, float] = {}
+    clock = time.perf_counter()
+    mesh = _size_mesh(curves, settings, channels)
+    seconds["mesh_s"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    model = fit_samples(samples, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
+                        seed=settings.seed, loss=settings.loss, device=settings.device, qat_steps=settings.qat_steps,
+                        feature_bits=settings.feature_bits, callback=callback, channels=channels)
+    seconds["fit_s"] = time.perf_counter() - clock
+    xy = np.asarray(samples.xy, dtype=np.float64)
+
+    def truth(m):
+        with torch.no_grad():
+            out = torch.cat([m(torch.from_numpy(xy[i:i + QUERY_BLOCK]).to(settings.device))
+                             for i in range(0, len(xy), QUERY_BLOCK)])
+        return values, out.cpu().numpy()
+
+    data_range = max(float(values.max() - values.min()), 1e-12)
+    info = _encoder_info(settings, curves.source, {"input": f"samples {len(xy)}", "samples": len(xy)})
+    return _finish(model, settings, info, seconds, len(xy), truth, data_range)

@@ -401,12 +401,13 @@ def read_dfield(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES) -> 
     return decode_dfield(_read(path, max_bytes))
 
 
-def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES) -> dict:
+def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES, with_mesh: bool = False) -> dict:
     """Versions, header, bytes per chunk and the counts/encodings of every chunk, without decoding the
-    mesh, features or weights (framing, CRCs and the header are still checked).
+    features or weights (framing, CRCs and the header are still checked).
 
     Returns dict with keys container_version, content_version, file_bytes, chunks, header, mesh,
-    features, mlp.
+    features, mlp; with ``with_mesh`` also ``decoded_mesh``, the ``Mesh`` (decoded and range-checked,
+    not run through ``Mesh.validate``).
     """
     buf = _read(path, max_bytes)
     chunks, sizes = _split_chunks(buf)
@@ -414,6 +415,10 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
     header = _parse_header(bytes(chunks[b"HEAD"]))
     _check_header(header, feat["slices"])
     table = _mlp_table(chunks[b"MLPW"])
+    extra = {}
+    if with_mesh:
+        extra["decoded_mesh"] = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"],
+                                            full_validate=False)
     return {
         "container_version": list(_FILE_HEAD.unpack_from(buf)[1:3]),
         "content_version": header["content_version"],
@@ -424,4 +429,5 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
         "features": feat,
         "mlp": {"tensors": {name: list(shape) for name, shape in table},
                 "parameters": sum(math.prod(s) for _, s in table)},
+        **extra,
     }

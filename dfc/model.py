@@ -125,6 +125,12 @@ class FieldModel(nn.Module):
         y = self.decoder(F)
         return torch.expm1(y) if self.transform == "log" else y
 
+    def render(self, width: int, height: int, window=None, *, spp: int = 1, t=None):
+        """Raster (height, width, C) float32 of ``window`` (x0, y0, x1, y1; default the domain), see ``dfc.render``."""
+        from .render import render
+
+        return render(self, width, height, window, spp=spp, t=t)
+
     # -- quantisation-aware mode --------------------------------------------------------------
     @property
     def quantization(self) -> dict | None:
