@@ -5,6 +5,8 @@ assembles the group and turns library errors into one-line messages (exit 1), th
 from __future__ import annotations
 
 import importlib
+import importlib.util
+import signal
 
 import click
 
@@ -16,6 +18,8 @@ COMMANDS = {
     "zoom": "zoom",
     "stats": "stats",
     "benchmark": "benchmark",
+    "bench": "bench",
+    "wos": "wos",
 }
 
 
@@ -43,12 +47,21 @@ def cli():
     """
 
 
-def main():
-    """Console entry point: library errors become one line on stderr and exit status 1."""
+def _terminate(signum, frame):
+    raise SystemExit(128 + signum)  # unwinds like Ctrl-C: atomic writers remove their temporary files
+
+
+def main(argv: list[str] | None = None):
+    """Console entry point: library errors become one line on stderr and exit status 1.
+
+    ``argv`` defaults to ``sys.argv[1:]``. SIGTERM exits through the same clean-up as Ctrl-C, so an
+    interrupted encode or decode leaves neither the output nor a temporary file.
+    """
     from .errors import DfcError
 
+    signal.signal(signal.SIGTERM, _terminate)
     try:
-        cli.main(standalone_mode=False)
+        cli.main(args=argv, prog_name="dfc", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("Aborted!", err=True)
         raise SystemExit(1)
@@ -61,6 +74,9 @@ def main():
     except OSError as e:
         where = f": {e.filename}" if getattr(e, "filename", None) else ""
         click.echo(f"dfc: error: {e.strerror or e}{where}", err=True)
+        raise SystemExit(1)
+    except MemoryError:
+        click.echo("dfc: error: out of memory (try a smaller --size, --batch-size or mesh)", err=True)
         raise SystemExit(1)
     except KeyboardInterrupt:
         click.echo("Aborted!", err=True)

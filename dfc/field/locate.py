@@ -4,8 +4,8 @@ A uniform grid of cells covers the domain; every cell lists (CSR) the triangles 
 found by an exact separating-axis test with a small safety margin, ordered by how deep the cell
 centre lies in them (largest minimum barycentric coordinate first, then triangle index), so the
 first candidate usually holds the query. A query reads its cell's list: a cell with one candidate
-resolves with one gather; otherwise candidates are tested in rounds over the still-unresolved
-queries, and the first whose barycentric coordinates are all ``>= 0`` wins (ties on shared edges and
+resolves with one gather; otherwise all its candidates are tested at once (vectorised over the queries
+whose first candidate misses), and the first whose barycentric coordinates are all ``>= 0`` wins (ties on shared edges and
 vertices thus go deterministically to the earlier candidate of the query's cell).
 When rounding makes every candidate miss, the candidate with the largest minimum barycentric
 coordinate is taken. Queries outside the domain rectangle are clamped onto it first.
@@ -23,8 +23,11 @@ from ..errors import MeshError
 
 __all__ = ["PointLocator", "CELLS_PER_TRIANGLE"]
 
-CELLS_PER_TRIANGLE = 8.0
+CELLS_PER_TRIANGLE = 32.0
 """Grid resolution: about this many cells per triangle (fewer candidates per cell vs. a larger table)."""
+
+MISS_CHUNK = 1 << 15
+"""Queries whose first candidate misses are resolved this many at a time (bounds the (M, K, 6) gather)."""
 
 _MARGIN = 1e-9
 """Cell/triangle overlap is kept within this fraction of the cell size, so boundary rounding never drops a triangle."""
@@ -106,7 +109,6 @@ class PointLocator(nn.Module):
         self.register_buffer("upper", torch.tensor([x1, y1], dtype=torch.float64))
         self.cell_size = h
         self.grid_shape = (ny, nx)
-        self.max_candidates = int(count.max())
         self.register_buffer("cell_start", torch.from_numpy((np.cumsum(count) - count).astype(np.int32)))
         self.register_buffer("cell_count", torch.from_numpy(count.astype(np.int32)))
         self.register_buffer("cell_triangles", torch.from_numpy(tri.astype(np.int32)))
@@ -138,27 +140,24 @@ class PointLocator(nn.Module):
         bary = self.barycentric(xy, tri)
         count = self.cell_count.index_select(0, cell)
         miss = torch.nonzero((bary.amin(1) < 0) & (count > 1)).squeeze(1)
-        if miss.numel() == 0:
-            return tri, bary
-        # Later candidates for the misses, in rounds over the still-unresolved ones.
-        start, count = start[miss], count[miss]
-        best_bary = bary[miss]
-        best_tri = tri[miss]
-        best = best_bary.amin(1)
-        active = torch.arange(miss.numel(), device=xy.device)
-        for k in range(1, self.max_candidates):
-            active = active[count[active] > k]
-            if active.numel() == 0:
-                break
-            cand = self.cell_triangles.index_select(0, start[active] + k).long()
-            b = self.barycentric(xy.index_select(0, miss[active]), cand)
-            score = b.amin(1)
-            better = score > best[active]
-            upd = active[better]
-            best[upd] = score[better]
-            best_tri[upd] = cand[better]
-            best_bary[upd] = b[better]
-            active = active[score < 0]
-        tri[miss] = best_tri
-        bary[miss] = best_bary
+        for lo in range(0, miss.numel(), MISS_CHUNK):
+            rows = miss[lo:lo + MISS_CHUNK]
+            tri[rows], bary[rows] = self._candidates(xy.index_select(0, rows), start[rows], count[rows])
         return tri, bary
+
+    def _candidates(self, xy: torch.Tensor, start: torch.Tensor, count: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Resolve queries (M, 2) against all their cell's candidates at once: the first candidate (in cell order)
+        that holds the query, else the one with the largest minimum barycentric coordinate."""
+        k = torch.arange(int(count.max()), device=xy.device)
+        valid = k < count[:, None]                                                      # (M, K)
+        pos = torch.where(valid, start[:, None] + k, start[:, None])
+        cand = self.cell_triangles[pos].long()                                          # (M, K)
+        m = self.tri_affine[cand]                                                       # (M, K, 6)
+        dx, dy = xy[:, None, 0] - m[..., 0], xy[:, None, 1] - m[..., 1]
+        l1 = m[..., 2] * dx + m[..., 3] * dy
+        l2 = m[..., 4] * dx + m[..., 5] * dy
+        score = torch.minimum(torch.minimum(l1, l2), 1.0 - l1 - l2).masked_fill(~valid, -torch.inf)
+        inside = score >= 0
+        pick = torch.where(inside.any(1), inside.to(torch.uint8).argmax(1), score.argmax(1))[:, None]
+        l1, l2 = l1.gather(1, pick)[:, 0], l2.gather(1, pick)[:, 0]
+        return cand.gather(1, pick)[:, 0], torch.stack([1.0 - l1 - l2, l1, l2], dim=1)

@@ -19,6 +19,10 @@ _MAX_ITER = 64
 """Newton steps at most; each step also halves the bracket when Newton leaves it, so 64 reach float64."""
 
 
+_BOUND_SLACK = 1e-12
+"""Relative slack on the sliver's height bound, so rounding of the bound never decides a point."""
+
+
 def chord_frames(control_points: torch.Tensor, apex: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """Chord frames of pieces.
 
@@ -82,9 +86,20 @@ def in_sliver(xy: torch.Tensor, origin: torch.Tensor, u_axis: torch.Tensor, v_ax
 
     xy : (N, 2) float64 queries; origin, u_axis, v_axis : (N, 2) and local : (N, 4, 2) float64, the
     chord frame of each query's piece (see ``chord_frames``, gathered per query). Returns (N,) bool.
+    Only queries in the band between the chord and the piece's height bound run the Newton solve.
     """
     rel = xy - origin
     u = (rel * u_axis).sum(-1)
     v = (rel * v_axis).sum(-1)
-    t = solve_graph(local[..., 0], u)
-    return v < _bernstein(local[..., 1], t)
+    # In the chord frame y0 = y3 = 0 up to rounding, so y(t) <= 0.75 max(y1, y2) + |y0| + |y3|: points
+    # below the chord are in, points above that bound are out; only the band between needs the Newton solve.
+    y = local[..., 1]
+    bound = (0.75 * torch.maximum(y[:, 1], y[:, 2]).clamp_min(0) * (1.0 + _BOUND_SLACK)
+             + y[:, 0].abs() + y[:, 3].abs())
+    out = v < 0
+    band = torch.nonzero((v >= 0) & (v < bound)).squeeze(1)
+    if band.numel():
+        c = local.index_select(0, band)
+        t = solve_graph(c[..., 0], u.index_select(0, band))
+        out[band] = v.index_select(0, band) < _bernstein(c[..., 1], t)
+    return out
