@@ -17,8 +17,9 @@ import torch
 
 from . import __version__
 from .curves import Curves
-from .errors import InputError
+from .errors import InputError, MeshError
 from .mesh import Mesh
+from .triangulate import DEFAULT_TRIANGLES, triangulate
 
 if TYPE_CHECKING:
     from .container import DfieldContents
@@ -93,8 +94,6 @@ def build_mesh(curves: Curves, settings: EncodeSettings, *, stats: dict | None =
     """Triangulate ``curves`` with the settings' size knobs and return the mesh as the decoder will see it
     (Draco-quantised with ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on."""
     from .meshcodec import roundtrip_mesh
-    from .triangulate import triangulate
-
     mesh = triangulate(curves, max_area=settings.max_area, edge_length=settings.edge_length,
                        max_triangles=settings.max_triangles, stats=stats)
     return roundtrip_mesh(mesh, settings.mesh_bits)
@@ -197,21 +196,25 @@ def _size_mesh(curves: Curves, settings: EncodeSettings, channels: list[str]) ->
         blob, _ = encode_dfield(to_contents(model), feature_bits=settings.feature_bits)
         return len(blob), mesh
 
-    lo, hi, best = 2, None, None
-    n = 2000
+    # Bisection on the triangle cap: ``fits`` is the largest cap known to fit the target, ``over`` the smallest
+    # known not to (too many bytes, or fewer triangles than the curves force).
+    fits, over, best, size = 0, None, None, None
+    n = DEFAULT_TRIANGLES
     for _ in range(TARGET_BYTES_PROBES):
-        size, mesh = file_bytes(n)
-        if size <= settings.target_bytes:
-            lo, best = n, mesh
-            n = n * 2 if hi is None else (n + hi) // 2
-        else:
-            hi = n
-            n = max(2, (lo + n) // 2)
-        if hi is not None and hi - lo <= max(8, lo // 50):
+        try:
+            size, mesh = file_bytes(n)
+        except MeshError:  # below the triangles the curves force: only larger caps can work
+            fits, size = max(fits, n), None
+        if size is not None and size <= settings.target_bytes:
+            fits, best = n, mesh
+        elif size is not None:
+            over = n
+        if over is not None and over - fits <= max(8, fits // 50):
             break
+        n = 2 * n if over is None else (fits + over) // 2
     if best is None:
-        raise InputError(f"target of {settings.target_bytes} bytes is too small: even the coarsest mesh the curves "
-                         f"allow needs {size} bytes")
+        raise InputError(f"target of {settings.target_bytes} bytes is too small for these curves"
+                         + (f": the smallest mesh tried needs {size} bytes" if size is not None else ""))
     return best
 
 
