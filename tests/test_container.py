@@ -35,7 +35,7 @@ def make_contents(S=1, K=5, seed=0, **mesh_kw) -> DfieldContents:
            "layers.1.weight": rng.normal(size=(3, 16)).astype(np.float32), "layers.1.bias": np.zeros(3, np.float32)}
     header = {"domain": list(mesh.domain), "channels": ["r", "g", "b"], "value_transform": "identity",
               "times": None if S == 1 else [0.5 * i for i in range(S)],
-              "model": {"dim": K, "hidden": 16, "layers": 2, "activation": "relu"},
+              "model": {"dim": K, "hidden": 16, "layers": 1, "activation": "relu", "oneblob_bins": 0},
               "encoder": {"steps": 10, "seed": seed, "source": "test"}}
     return DfieldContents(header=header, mesh=mesh, features=features, mlp=mlp)
 

@@ -142,3 +142,15 @@ def test_rejects_bad_options(mesh):
         FieldModel(field, ["R", "R"])
     with pytest.raises(ValueError, match="single time slice"):
         FieldModel(FeatureField(mesh, n_slices=2, times=[0.0, 1.0]), ["R"])(_xy(), 0.5, query=field.query(_xy()))
+
+
+def test_queries_outside_the_domain_take_the_nearest_domain_value(mesh):
+    """spec/conventions.md: the one-blob encoding clamps exactly as the feature field does."""
+    model = FieldModel(FeatureField(mesh, dim=4, seed=3), ["R"], hidden=8, oneblob_bins=4, seed=3)
+    x0, y0, x1, y1 = mesh.domain
+    mid = 0.5 * (y0 + y1)
+    outside = torch.tensor([[x0 - 5.0 * (x1 - x0), mid], [x1 + 1.0, y1 + 1.0]], dtype=torch.float64)
+    border = torch.tensor([[x0, mid], [x1, y1]], dtype=torch.float64)
+    with torch.no_grad():
+        torch.testing.assert_close(model(outside), model(border), rtol=0, atol=0)
+        assert not torch.equal(model(border[:1]), model(border[1:]))

@@ -47,9 +47,6 @@ class Interpolator(nn.Module):
         rows[:, :6] = np.stack([layout.corner_start, layout.corner_end], axis=-1).reshape(-1, 6)
         # Per-corner tables, flattened to (3T, ...) and indexed by 3 * triangle + corner.
         self.register_buffer("corner_rows", torch.from_numpy(rows))                   # (T, 7), slot 6 padding
-        spread = np.zeros((3, N_SLOTS), np.float32)
-        spread[[0, 1, 2], [0, 2, 4]] = 1.0
-        self.register_buffer("spread", torch.from_numpy(spread))                      # λ_i -> slot 2i
         self.register_buffer("corner_radial", torch.from_numpy(np.isfinite(layout.corner_theta)))
         self.register_buffer("corner_pos", torch.from_numpy(pos.reshape(-1, 2)))
         self.register_buffer("corner_edge", torch.from_numpy((np.roll(pos, -1, axis=1) - pos).reshape(-1, 2)))
@@ -92,7 +89,8 @@ class Interpolator(nn.Module):
         Returns idx (N, 7) int64 bank rows and w (N, 7) float32 weights summing to 1.
         """
         idx = self.corner_rows.index_select(0, tri)
-        w = bary.to(torch.float32) @ self.spread
+        w = bary.new_zeros((len(tri), N_SLOTS), dtype=torch.float32)
+        w[:, 0:6:2] = bary  # λ_i -> slot 2i
         # Radial interpolation, only at corners whose vertex has discontinuities.
         q, i = torch.nonzero(self.corner_radial.index_select(0, tri)).unbind(1)
         if q.numel():

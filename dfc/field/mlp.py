@@ -63,7 +63,8 @@ class OneBlob(nn.Module):
     bins : int ≥ 1
     domain : (x0, y0, x1, y1) float, the rectangle positions live in
 
-    Input (N, 2) float → output (N, 2 * bins) float32, x's bins then y's.
+    Input (N, 2) float → output (N, 2 * bins) float32, x's bins then y's. Positions outside the domain are
+    clamped onto it first, as the feature field clamps them (gradient zero outside).
     """
 
     in_dim = 2
@@ -86,6 +87,6 @@ class OneBlob(nn.Module):
     def forward(self, xy: Tensor) -> Tensor:
         if xy.ndim != 2 or xy.shape[1] != 2:
             raise ValueError(f"expected positions (N, 2), got {tuple(xy.shape)}")
-        u = (xy.to(torch.float64) - self.lo) / self.span  # (N, 2)
+        u = ((xy.to(torch.float64) - self.lo) / self.span).clamp(0.0, 1.0)  # (N, 2), clamped into the domain
         d = (u[:, :, None] - self.centres) * self.bins  # (N, 2, bins), in units of σ
         return torch.exp(-0.5 * d * d).reshape(len(xy), 2 * self.bins).to(torch.float32)

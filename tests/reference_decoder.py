@@ -1,0 +1,340 @@
+"""An independent ``.dfield`` decoder written from ``spec/dfield.md`` and ``spec/field.md`` alone.
+
+It exists to prove that the two documents suffice to evaluate a field: it imports nothing from dfc
+(only numpy, zstandard and DracoPy), skips CRCs and most validation, and evaluates ``f(x, t)`` in
+float64 throughout. Section numbers below are those of the spec documents ("D" = dfield.md,
+"F" = field.md).
+
+Usage::
+
+    field = ReferenceField.from_bytes(blob)
+    values = field(xy)              # (N, C) float64, xy (N, 2) in domain units
+    values = field(xy, t=0.5)       # fields with several time slices
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+
+import DracoPy
+import numpy as np
+import zstandard
+
+__all__ = ["ReferenceField", "read_chunks"]
+
+SIGNATURE = b"\x89DFL\r\n\x1a\n"
+TWO_PI = 2.0 * np.pi
+BISECTION_STEPS = 80
+"""Bisection halvings of [0, 1] when solving U(t) = u (F §5.4); 53 already reach binary64 resolution."""
+
+
+def _unzstd(data: bytes) -> bytes:
+    return zstandard.ZstdDecompressor().decompress(bytes(data))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+
+
+def _angle(d: np.ndarray) -> np.ndarray:
+    return np.arctan2(d[..., 1], d[..., 0])
+
+
+def read_chunks(blob: bytes) -> dict[bytes, bytes]:
+    """Chunk type -> data (D §2; CRCs not checked, ancillary chunks dropped)."""
+    if blob[:8] != SIGNATURE:
+        raise ValueError("not a .dfield file")
+    pos, chunks = 16, {}
+    while pos < len(blob):
+        length, ctype = struct.unpack_from("<I4s", blob, pos)
+        if not ctype[0] & 0x20:
+            chunks[ctype] = blob[pos + 8:pos + 8 + length]
+        pos += 8 + length + (-length) % 4 + 4
+    return chunks
+
+
+def _decode_mesh(data: bytes, domain) -> tuple[np.ndarray, np.ndarray]:
+    """MESH chunk -> vertices (V, 2) float64, faces (T, 3) int64 in canonical order (D §6.1)."""
+    encoding, bits, _, V, T = struct.unpack_from("<BBHII", data)
+    payload = data[12:]
+    if encoding == 1:
+        raw = _unzstd(payload)
+        vertices = np.frombuffer(raw, "<f8", 2 * V).reshape(V, 2).copy()
+        return vertices, np.frombuffer(raw, "<u4", 3 * T, 16 * V).reshape(T, 3).astype(np.int64)
+    mesh = DracoPy.decode(bytes(payload))
+    q = np.rint(np.asarray(mesh.points, np.float64)[:, :2]).astype(np.int64)
+    faces = np.asarray(mesh.faces, np.int64)
+    order = np.lexsort((q[:, 1], q[:, 0]))           # by qx, ties by qy
+    rank = np.empty(V, np.int64)
+    rank[order] = np.arange(V)
+    faces = rank[faces]
+    shift = np.argmin(faces, axis=1)[:, None]          # rotate: smallest index first
+    faces = np.take_along_axis(faces, (shift + np.arange(3)) % 3, axis=1)
+    faces = faces[np.lexsort((faces[:, 2], faces[:, 1], faces[:, 0]))]
+    t = q[order] / float(2**bits - 1)
+    x0, y0, x1, y1 = domain
+    vertices = np.stack([(1.0 - t[:, 0]) * x0 + t[:, 0] * x1, (1.0 - t[:, 1]) * y0 + t[:, 1] * y1], axis=1)
+    return vertices, faces
+
+
+def _decode_topology(data: bytes, vertices: np.ndarray, faces: np.ndarray):
+    """TOPO chunk -> disc edges (E, 2), curve faces (C,), endpoints (C, 2), control points (C, 4, 2) (D §6.2)."""
+    E, C, C3, cp_format = struct.unpack_from("<IIIB", data)
+    raw = _unzstd(data[16:])
+    pos = 0
+
+    def take(dtype, count):
+        nonlocal pos
+        out = np.frombuffer(raw, dtype, count, pos)
+        pos += out.nbytes
+        return out.astype(np.int64) if dtype != "<f8" else out
+
+    edges = take("<u4", 2 * E).reshape(E, 2)
+    take("<i4", E)
+    ctri = take("<u4", C)
+    ends = take("<u4", 2 * C).reshape(C, 2)
+    take("<i4", C)
+    degree = take("u1", C)
+    A, B = vertices[ends[:, 0]], vertices[ends[:, 1]]
+    if cp_format == 1:
+        inner = take("<f8", 4 * C).reshape(C, 2, 2)
+    else:
+        X = vertices[faces[ctri].sum(1) - ends.sum(1)]
+        uw = take("<i4", 2 * (C + C3)).reshape(-1, 2) / 2.0**24
+        owner = np.repeat(np.arange(C), np.where(degree == 3, 2, 1))
+        pts = (A[owner] + uw[:, :1] * (B - A)[owner]) + uw[:, 1:] * (X - A)[owner]
+        inner = np.empty((C, 2, 2))
+        start = np.cumsum(np.where(degree == 3, 2, 1)) - np.where(degree == 3, 2, 1)
+        cubic = degree == 3
+        inner[cubic] = np.stack([pts[start[cubic]], pts[start[cubic] + 1]], axis=1)
+        two_q = 2.0 * pts[start[~cubic]]
+        inner[~cubic] = np.stack([(A[~cubic] + two_q) / 3.0, (two_q + B[~cubic]) / 3.0], axis=1)
+    return edges, ctri, ends, np.concatenate([A[:, None], inner, B[:, None]], axis=1)
+
+
+def _decode_features(data: bytes) -> np.ndarray:
+    """FEAT chunk -> bank (S, N, K) float32 (D §6.3)."""
+    S, N, K, bits = struct.unpack_from("<IIHB", data)
+    scale = np.frombuffer(data, "<f4", K, 12)
+    offset = np.frombuffer(data, "<f4", K, 12 + 4 * K)
+    q = np.frombuffer(_unzstd(data[12 + 8 * K:]), "<u1" if bits <= 8 else "<u2").reshape(S, K, N)
+    return (offset[None, :, None] + q.astype(np.float32) * scale[None, :, None]).transpose(0, 2, 1)
+
+
+def _decode_mlp(data: bytes) -> dict[str, np.ndarray]:
+    """MLPW chunk -> name -> float64 array (D §6.4)."""
+    n, total = struct.unpack_from("<II", data)
+    values = np.frombuffer(_unzstd(data[8 + 80 * n:]), "<f2").astype(np.float64)
+    out, pos = {}, 0
+    for i in range(n):
+        name, rank, *dims = struct.unpack_from("<60sI4I", data, 8 + 80 * i)
+        shape = tuple(dims[:rank])
+        size = int(np.prod(shape))
+        out[name.rstrip(b"\0").decode("ascii")] = values[pos:pos + size].reshape(shape)
+        pos += size
+    return out
+
+
+class ReferenceField:
+    """A decoded field: geometry tables (F §§2–4) plus the bank and the network."""
+
+    def __init__(self, header: dict, vertices, faces, disc_edges, curve_faces, curve_ends, control_points,
+                 bank, mlp):
+        self.header, self.vertices, self.faces = header, vertices, faces
+        self.domain = np.asarray(header["domain"], np.float64)
+        self.bank = bank.astype(np.float64)
+        self.mlp = mlp
+        self.curve_faces, self.curve_ends, self.control_points = curve_faces, curve_ends, control_points
+        self._build_layout(disc_edges)
+
+    @classmethod
+    def from_bytes(cls, blob: bytes) -> ReferenceField:
+        ch = read_chunks(blob)
+        header = json.loads(_unzstd(ch[b"HEAD"]))
+        vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"])
+        edges, ctri, ends, cp = _decode_topology(ch[b"TOPO"], vertices, faces)
+        return cls(header, vertices, faces, edges, ctri, ends, cp, _decode_features(ch[b"FEAT"]),
+                   _decode_mlp(ch[b"MLPW"]))
+
+    # ------------------------------------------------------------------------------------- layout
+    def _build_layout(self, disc_edges: np.ndarray) -> None:
+        verts, faces, V = self.vertices, self.faces, len(self.vertices)
+        pairs = np.unique(np.sort(np.concatenate([disc_edges, self.curve_ends]), axis=1), axis=0)
+        frm = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        to = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        ang = _angle(verts[to] - verts[frm])
+        order = np.lexsort((to, ang, frm))                            # F §2: by vertex, angle, far vertex
+        frm, to, ang = frm[order], to[order], ang[order]
+        k = np.bincount(frm, minlength=V)
+        first = np.cumsum(k) - k
+        self.k = k
+        self.offset = np.cumsum(np.maximum(1, 2 * k)) - np.maximum(1, 2 * k)   # F §3
+        self.n_vertex_rows = int(np.maximum(1, 2 * k).sum())
+        kmax = max(int(k.max()), 1)
+        slot = np.arange(len(frm)) - first[frm]
+        angles = np.full((V, kmax), np.inf)                          # padded per-vertex half-edge tables
+        angles[frm, slot] = ang
+        far = np.full((V, kmax), -1)
+        far[frm, slot] = to
+        self._far = far
+
+        # Corner tables (F §4), shape (T, 3).
+        v, n, p = faces, np.roll(faces, -1, axis=1), np.roll(faces, 1, axis=1)
+        e_n, e_p = verts[n] - verts[v], verts[p] - verts[v]
+        ang_n = _angle(e_n)
+        beta = np.arctan2(_cross(e_n, e_p), np.sum(e_n * e_p, axis=-1))
+        kv = k[v]
+        count = (angles[v] <= ang_n[..., None]).sum(-1)              # half-edges at or before v -> n
+        j = np.where(kv > 0, (count - 1) % np.maximum(kv, 1), 0)
+        a_j = np.where(kv > 0, angles[v, j], 0.0)                   # vertices without half-edges: unused
+        a_next = np.where(kv > 0, angles[v, (j + 1) % np.maximum(kv, 1)], 0.0)
+        theta = np.where(kv == 1, TWO_PI, np.mod(a_next - a_j, TWO_PI))
+        self.c_radial = kv > 0
+        self.c_start = np.where(kv > 0, self.offset[v] + 2 * j, self.offset[v])
+        self.c_end = np.where(kv > 0, self.c_start + 1, self.c_start)
+        self.c_alpha = np.where(kv > 0, np.mod(ang_n - a_j, TWO_PI), 0.0)
+        self.c_beta, self.c_theta = beta, np.where(kv > 0, theta, 1.0)
+        self.n_rows = self.n_vertex_rows + len(self.curve_faces)
+        if self.bank.shape[1] != self.n_rows:
+            raise ValueError(f"FEAT has {self.bank.shape[1]} rows, the layout needs {self.n_rows}")
+
+        # Curves (F §5.4): corner positions of A, B, apex; far rows; chord frames.
+        self.face_curve = np.full(len(faces), -1)
+        self.face_curve[self.curve_faces] = np.arange(len(self.curve_faces))
+        tri = faces[self.curve_faces]                                  # (C, 3)
+        is_a, is_b = tri == self.curve_ends[:, :1], tri == self.curve_ends[:, 1:]
+        self.corner_a, self.corner_b = is_a.argmax(1), is_b.argmax(1)
+        self.corner_x = (~(is_a | is_b)).argmax(1)
+        self.far_a = self._far_rows(self.corner_a, self.curve_ends[:, 1])
+        self.far_b = self._far_rows(self.corner_b, self.curve_ends[:, 0])
+        cp = self.control_points
+        apex = verts[tri[np.arange(len(tri)), self.corner_x]]
+        g = cp[:, 3] - cp[:, 0]
+        self.ubar = g / np.sum(g * g, axis=1, keepdims=True)
+        vbar = np.stack([-self.ubar[:, 1], self.ubar[:, 0]], axis=1)
+        flip = np.sum((apex - cp[:, 0]) * vbar, axis=1) < 0
+        self.vbar = np.where(flip[:, None], -vbar, vbar)
+        rel = cp - cp[:, :1]
+        self.U = np.einsum("cmd,cd->cm", rel, self.ubar)
+        self.W = np.einsum("cmd,cd->cm", rel, self.vbar)
+
+    def _far_rows(self, corner: np.ndarray, other: np.ndarray) -> np.ndarray:
+        """Far row at one endpoint of every curve (F §5.4, "Sliver rows")."""
+        c = np.arange(len(corner))
+        tri = self.faces[self.curve_faces]
+        e = tri[c, corner]
+        nxt = tri[c, (corner + 1) % 3]
+        q = np.argmax(self._far[e] == other[:, None], axis=1)       # index of the chord half-edge at e
+        kk = self.k[e]
+        return np.where(nxt == other, self.offset[e] + 2 * ((q - 1) % kk) + 1, self.offset[e] + 2 * q)
+
+    # ------------------------------------------------------------------------------------- queries
+    def clamp(self, xy) -> np.ndarray:
+        x0, y0, x1, y1 = self.domain
+        xy = np.asarray(xy, np.float64)
+        return np.stack([np.clip(xy[:, 0], x0, x1), np.clip(xy[:, 1], y0, y1)], axis=1)
+
+    def barycentric(self, xy: np.ndarray, face: np.ndarray) -> np.ndarray:
+        """Barycentric coordinates (N, 3) of points (N, 2) in faces (N,)."""
+        p = self.vertices[self.faces[face]]                          # (N, 3, 2)
+        area = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        lam = [_cross(p[:, (i + 2) % 3] - p[:, (i + 1) % 3], xy - p[:, (i + 1) % 3]) for i in range(3)]
+        return np.stack(lam, axis=1) / area[:, None]
+
+    def locate(self, xy: np.ndarray, block: int = 1024) -> np.ndarray:
+        """Face (N,) whose smallest barycentric coordinate of each point is largest (F §5.1; brute force)."""
+        p = self.vertices[self.faces]                                # (T, 3, 2)
+        area = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        out = []
+        for i in range(0, len(xy), block):
+            q = xy[i:i + block, None, :]
+            lam = np.stack([_cross(p[:, (m + 2) % 3] - p[:, (m + 1) % 3], q - p[:, (m + 1) % 3]) for m in range(3)],
+                           axis=-1) / area[:, None]
+            out.append(np.argmax(lam.min(-1), axis=1))
+        return np.concatenate(out) if out else np.zeros(0, np.int64)
+
+    def in_sliver(self, xy: np.ndarray, curve: np.ndarray) -> np.ndarray:
+        """Side test (F §5.4) of points (N, 2) against curves (N,): True between chord and curve."""
+        rel = xy - self.control_points[curve, 0]
+        u = np.sum(rel * self.ubar[curve], axis=1)
+        w = np.sum(rel * self.vbar[curve], axis=1)
+        U, W = self.U[curve], self.W[curve]
+        u = np.clip(u, U[:, 0], U[:, 3])
+        lo, hi = np.zeros(len(u)), np.ones(len(u))
+        for _ in range(BISECTION_STEPS):
+            mid = 0.5 * (lo + hi)
+            below = _bernstein(U, mid) < u
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        t = np.where(u <= U[:, 0], 0.0, np.where(u >= U[:, 3], 1.0, 0.5 * (lo + hi)))   # exact at the ends
+        return w < _bernstein(W, t)
+
+    def weights(self, xy, face=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Rows (N, 7), weights (N, 7) of one slice, and the clamped points (N, 2) (F §5)."""
+        xy = self.clamp(xy)
+        face = self.locate(xy) if face is None else np.asarray(face, np.int64)
+        lam = self.barycentric(xy, face)
+        rows = np.zeros((len(xy), 7), np.int64)
+        w = np.zeros((len(xy), 7))
+        for i in range(3):                                           # F §5.2 radial, §5.3 blend
+            v = self.faces[face, i]
+            e_n = self.vertices[self.faces[face, (i + 1) % 3]] - self.vertices[v]
+            d = xy - self.vertices[v]
+            psi = np.arctan2(_cross(e_n, d), np.sum(e_n * d, axis=1))
+            psi = np.clip(psi, 0.0, self.c_beta[face, i])
+            tau = np.minimum(self.c_alpha[face, i] + psi, self.c_theta[face, i]) / self.c_theta[face, i]
+            tau = np.where(self.c_radial[face, i], tau, 0.0)
+            rows[:, 2 * i], rows[:, 2 * i + 1] = self.c_start[face, i], self.c_end[face, i]
+            w[:, 2 * i], w[:, 2 * i + 1] = lam[:, i] * (1.0 - tau), lam[:, i] * tau
+        curve = self.face_curve[face]
+        cand = np.flatnonzero(curve >= 0)
+        q = cand[self.in_sliver(xy[cand], curve[cand])]              # F §5.4 sliver blend
+        c = curve[q]
+        rows[q] = 0
+        w[q] = 0.0
+        for slot, corner, row in ((0, self.corner_a[c], self.far_a[c]), (2, self.corner_b[c], self.far_b[c]),
+                                  (6, self.corner_x[c], self.n_vertex_rows + c)):
+            rows[q, slot] = row
+            w[q, slot] = lam[q, corner]
+        return rows, w, xy
+
+    def features(self, xy, t=None, face=None) -> np.ndarray:
+        """Φ(x, t) (N, K) float64 (F §§5–6)."""
+        rows, w, _ = self.weights(xy, face)
+        return self._blend(rows, w, t)
+
+    def _blend(self, rows, w, t) -> np.ndarray:
+        S = self.bank.shape[0]
+        if S == 1:
+            return np.einsum("nj,njk->nk", w, self.bank[0][rows])
+        times = np.asarray(self.header["times"], np.float64)
+        t = np.clip(np.broadcast_to(np.asarray(t, np.float64), (len(rows),)), times[0], times[-1])
+        h = np.clip(np.searchsorted(times, t, side="left"), 1, S - 1)
+        sigma = (t - times[h - 1]) / (times[h] - times[h - 1])
+        lo = np.einsum("nj,njk->nk", w, self.bank[h - 1][np.arange(len(rows))[:, None], rows])
+        hi = np.einsum("nj,njk->nk", w, self.bank[h][np.arange(len(rows))[:, None], rows])
+        return (1.0 - sigma)[:, None] * lo + sigma[:, None] * hi
+
+    def __call__(self, xy, t=None, face=None) -> np.ndarray:
+        """f(x, t) (N, C) float64 (F §§7–8)."""
+        rows, w, xy = self.weights(xy, face)
+        z = self._blend(rows, w, t)
+        n_layers = sum(1 for name in self.mlp if name.endswith(".weight"))
+        bins = (self.mlp["layers.0.weight"].shape[1] - z.shape[1]) // 2   # in_0 = K + 2b (F §7)
+        if bins:
+            x0, y0, x1, y1 = self.domain
+            u = np.stack([(xy[:, 0] - x0) / (x1 - x0), (xy[:, 1] - y0) / (y1 - y0)], axis=1)
+            d = (u[:, :, None] - (np.arange(bins) + 0.5) / bins) * bins
+            z = np.concatenate([z, np.exp(-0.5 * d * d).reshape(len(z), 2 * bins)], axis=1)
+        act = np.tanh if self.header["model"]["activation"] == "tanh" else (lambda s: np.maximum(s, 0.0))
+        for i in range(n_layers):
+            z = z @ self.mlp[f"layers.{i}.weight"].T + self.mlp[f"layers.{i}.bias"]
+            if i < n_layers - 1:
+                z = act(z)
+        return np.expm1(z) if self.header["value_transform"] == "log" else z
+
+
+def _bernstein(c: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Cubic Bernstein polynomials with coefficients c (N, 4) at t (N,)."""
+    s = 1.0 - t
+    return s**3 * c[:, 0] + 3 * s * s * t * c[:, 1] + 3 * s * t * t * c[:, 2] + t**3 * c[:, 3]
