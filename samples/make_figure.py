@@ -1,7 +1,7 @@
 """Regenerate the README picture: ``python samples/make_figure.py`` (from the repository root).
 
 Encodes ``sample.exr`` with its curves (default settings) into ``sample.dfield`` unless that file exists, then
-writes ``zoom_comparison.png``: a 33× zoom window at the triangle's corner (230, 60), left the input raster
+writes ``zoom_comparison.png``: a 100× zoom window at the triangle's corner (230, 60), left the input raster
 upsampled bicubically, right the ``.dfield`` rendered at the window's own pixel centres.
 """
 
@@ -17,7 +17,7 @@ from dfc.imageio import linear_to_srgb, read_image
 from dfc.readers import read_any
 
 HERE = Path(__file__).parent
-CENTRE, ZOOM, SIDE = (222.0, 62.0), 33.0, 384
+CENTRE, ZOOM, SIDE = (229.0, 60.5), 100.0, 384
 
 
 def bicubic(pixels: np.ndarray, window, side: int) -> np.ndarray:
