@@ -135,3 +135,147 @@ def sample_scene() -> AnalyticScene:
         return out
 
     return AnalyticScene("sample", curves, ["R", "G", "B"], value)
+
+
+def _polylines(curves: Curves) -> dict[str, np.ndarray]:
+    """Flattened polyline (M, 2) of every input curve, by name."""
+    return {
+        name: _bezier_points(curves.control_points[curves.curve == i], curves.degree[curves.curve == i])
+        for i, name in enumerate(curves.names)
+    }
+
+
+def _circle(cx: float, cy: float, r: float) -> list[tuple[int, list]]:
+    """A closed chain of four cubics approximating a circle (the usual κ = 0.5523 construction)."""
+    k = 0.5522847498 * r
+    pts = [(cx + r, cy), (cx, cy + r), (cx - r, cy), (cx, cy - r), (cx + r, cy)]
+    tan = [(0, k), (-k, 0), (0, -k), (k, 0), (0, k)]
+    return [(3, [pts[i], (pts[i][0] + tan[i][0], pts[i][1] + tan[i][1]),
+                 (pts[i + 1][0] - tan[i + 1][0], pts[i + 1][1] - tan[i + 1][1]), pts[i + 1]]) for i in range(4)]
+
+
+def _polygon(points: list[tuple[float, float]]) -> list[tuple[int, list]]:
+    return [(1, [points[i], points[(i + 1) % len(points)]]) for i in range(len(points))]
+
+
+def _shapes_layout():
+    """Curves and region masks of the ``shapes`` geometry: 256 × 256, four disjoint closed shapes (a cubic
+    blob holding a circle, a five-pointed star of lines, a quadratic lens) over a smooth background."""
+    domain = (0.0, 0.0, 256.0, 256.0)
+    blob = [
+        (3, [(40, 60), (50, 20), (120, 15), (125, 60)]),
+        (3, [(125, 60), (130, 100), (110, 130), (75, 125)]),
+        (3, [(75, 125), (40, 120), (30, 95), (40, 60)]),
+    ]
+    c, r_out, r_in = (190.0, 80.0), 50.0, 20.0
+    angles = -np.pi / 2 + np.arange(10) * np.pi / 5
+    radii = np.where(np.arange(10) % 2 == 0, r_out, r_in)
+    star = _polygon([(c[0] + rr * np.cos(a), c[1] + rr * np.sin(a)) for a, rr in zip(angles, radii)])
+    lens = [(2, [(60, 200), (120, 150), (180, 200)]), (2, [(180, 200), (120, 250), (60, 200)])]
+    ring = _circle(82.0, 75.0, 18.0)
+    curves = _pieces([("blob", blob), ("star", star), ("lens", lens), ("circle", ring)], domain)
+    poly = _polylines(curves)
+
+    def regions(xy: np.ndarray) -> dict[str, np.ndarray]:
+        circle = inside(xy, poly["circle"])
+        return {"blob": inside(xy, poly["blob"]) & ~circle, "circle": circle, "star": inside(xy, poly["star"]),
+                "lens": inside(xy, poly["lens"])}
+
+    return curves, regions
+
+
+def _shapes_colours(xy: np.ndarray, regions: dict[str, np.ndarray]) -> np.ndarray:
+    """Piecewise-smooth RGB in [0, 1] of the ``shapes`` layout: one smooth function per region."""
+    x, y = xy[:, 0] / 256.0, xy[:, 1] / 256.0
+    out = np.stack([0.2 + 0.3 * x + 0.1 * np.sin(5 * y), 0.3 + 0.3 * y, 0.6 - 0.3 * x], axis=1)
+    smooth = {
+        "blob": (0.85 - 0.4 * y, 0.25 + 0.3 * x, 0.15 + 0.1 * np.cos(8 * x)),
+        "circle": (0.1 + 0.2 * x, 0.15 + 0.1 * y, 0.35 + 0.2 * y),
+        "star": (0.95 - 0.2 * y, 0.8 - 0.3 * x, 0.2 + 0.2 * np.sin(7 * x * y)),
+        "lens": (0.2 + 0.3 * np.sin(4 * x), 0.75 - 0.3 * y, 0.3 + 0.4 * x),
+    }
+    for name, mask in regions.items():
+        out[mask] = np.stack(smooth[name], axis=1)[mask]
+    return out
+
+
+def shapes_scene() -> AnalyticScene:
+    """``shapes``: 256 × 256 px, piecewise-smooth RGB in [0, 1] separated by closed Bézier shapes (a cubic blob
+    holding a cubic circle, a quadratic lens) and a polygon (a five-pointed star of lines)."""
+    curves, regions = _shapes_layout()
+    return AnalyticScene("shapes", curves, ["R", "G", "B"], lambda xy: _shapes_colours(xy, regions(xy)))
+
+
+HDR_GAIN = {"background": 0.5, "blob": 20.0, "circle": 200.0, "star": 5.0, "lens": 60.0}
+"""Per-region gain of the ``hdr`` scene over the ``shapes`` colours."""
+
+
+def hdr_scene() -> AnalyticScene:
+    """``hdr``: the ``shapes`` layout with per-region gains ``HDR_GAIN``: linear RGB from ≈ 0.05 to ≈ 190."""
+    curves, regions = _shapes_layout()
+
+    def value(xy: np.ndarray) -> np.ndarray:
+        masks = regions(xy)
+        gain = np.full(len(xy), HDR_GAIN["background"])
+        for name, mask in masks.items():
+            gain[mask] = HDR_GAIN[name]
+        return _shapes_colours(xy, masks) * gain[:, None]
+
+    return AnalyticScene("hdr", curves, ["R", "G", "B"], value)
+
+
+STROKES_OFFSET = 0.75
+"""Constant added to the ``strokes`` value so it stays positive."""
+
+
+def strokes_scene() -> AnalyticScene:
+    """``strokes``: 256 × 256, one channel ``Y = STROKES_OFFSET + Σ_k w_k(x)`` with ``w_k`` the angle stroke k
+    subtends at x divided by 2π. Each open stroke (a cubic, a quadratic, a two-line polyline) ends inside the
+    domain; ``Y`` jumps by exactly one across a stroke and is continuous (harmonic) elsewhere."""
+    domain = (0.0, 0.0, 256.0, 256.0)
+    strokes = [
+        ("cubic", [(3, [(40, 60), (90, 10), (140, 120), (200, 50)])]),
+        ("quadratic", [(2, [(50, 200), (110, 120), (170, 210)])]),
+        ("polyline", [(1, [(190, 120), (225, 160)]), (1, [(225, 160), (200, 215)])]),
+    ]
+    curves = _pieces(strokes, domain)
+    poly = _polylines(curves)
+
+    def value(xy: np.ndarray) -> np.ndarray:
+        return (STROKES_OFFSET + sum(subtended(xy, poly[name]) for name, _ in strokes))[:, None]
+
+    return AnalyticScene("strokes", curves, ["Y"], value)
+
+
+SCENES: dict[str, Callable[[], AnalyticScene]] = {
+    "sample": sample_scene,
+    "shapes": shapes_scene,
+    "strokes": strokes_scene,
+    "hdr": hdr_scene,
+}
+"""Scene name -> factory of the analytic scenes."""
+
+
+def get_scene(name: str) -> AnalyticScene:
+    """The scene called ``name`` (a key of ``SCENES``); raises InputError naming the known ones."""
+    from .errors import InputError
+
+    if name not in SCENES:
+        raise InputError(f"unknown scene {name!r}; known scenes: {', '.join(sorted(SCENES))}")
+    return SCENES[name]()
+
+
+def curve_probes(curves: Curves, count: int = 2) -> np.ndarray:
+    """(k, 2) float64 points on discontinuities, k = min(count, number of input curves): the middle
+    (parameter 0.5) of the middle piece of each of the first ``count`` input curves."""
+    cp, ids = curves.control_points, curves.curve
+    out = []
+    for c in np.unique(ids)[:count]:
+        piece = cp[ids == c][(ids == c).sum() // 2]
+        out.append(0.125 * piece[0] + 0.375 * piece[1] + 0.375 * piece[2] + 0.125 * piece[3])
+    return np.array(out, dtype=np.float64).reshape(-1, 2)
+
+
+def default_probes(scene: AnalyticScene, count: int = 2) -> np.ndarray:
+    """The default zoom centres of a scene: ``curve_probes`` of its curves (points on discontinuities)."""
+    return curve_probes(scene.curves, count)
