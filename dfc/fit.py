@@ -313,28 +313,21 @@ def fit_image(
         (``edge_pixels``): their box-filtered blend of both sides would otherwise pull the field's
         values near every edge towards the blend, visible as a soft band at zoom. Ignored when it
         would leave out more than ``MAX_DROPPED_FRACTION`` of the pixels.
-    **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform)
+    **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform; the transform
+        defaults to "log" for HDR images whose values are all > -1, else "identity")
 
     Returns
     -------
     FieldModel, in evaluation mode; quantised mode stays on when ``qat_steps > 0``.
     """
-    from .field.feature_field import FeatureField
+    from .samples import default_channels
 
     pixels = _check_pixels(image)
     if channels is None:
-        channels = getattr(image, "channels", None) or _default_channels(pixels.shape[2])
-    if loss == "auto":
-        loss = "relmse" if float(pixels.max()) > 1.0 else "mse"
-    steps = DEFAULT_STEPS if steps is None else steps
-    if qat_steps is None:
-        qat_steps = round(DEFAULT_QAT_FRACTION * steps) if isinstance(steps, int) else 0
-    field = FeatureField(mesh, dim=dim, seed=seed, device=device)
-    model = FieldModel(field, list(channels), seed=seed, **model_kw)
-    mean = torch.from_numpy(pixels.reshape(-1, pixels.shape[2]).mean(axis=0, dtype=np.float64))
-    with torch.no_grad():  # start at the image's mean colour: HDR values are far from the MLP's initial output
-        out_bias = model.decoder.linears()[-1].bias
-        out_bias.copy_(torch.log1p(mean.clamp_min(0)) if model.transform == "log" else mean)
+        channels = getattr(image, "channels", None) or default_channels(pixels.shape[2])
+    values = pixels.reshape(-1, pixels.shape[2])
+    model, run = _start(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, model_kw)
+    field = model.field
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
     exclude = edge_pixels(mesh, *pixels.shape[:2]) if mixed_pixels == "drop" else None
@@ -346,11 +339,147 @@ def fit_image(
         pixels, mesh.domain, batch_size, device=device, query=field.query if cached else None,
         jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=seed, exclude=exclude,
     )
-    data_range = max(float(pixels.max() - pixels.min()), 1e-12) if loss == "relmse" else 1.0
-    fit(model, sampler, steps=steps, lr=lr, final_lr=final_lr, loss=loss, seed=seed, callback=callback,
-        qat_steps=qat_steps, feature_bits=feature_bits, data_range=data_range)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
     return model
 
 
-def _default_channels(c: int) -> list[str]:
-    return {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(c, [f"c{k}" for k in range(c)])
+def _start(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, model_kw):
+    """A fresh ``FieldModel`` for targets ``values`` (M, C) and the ``fit`` settings derived from them.
+
+    HDR targets (some value > 1) default to the relative MSE and, when every value is > -1, to the ``log`` value
+    transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
+    output bias starts at the (transformed) mean of the targets. Returns (model, dict of ``fit`` keywords:
+    steps, qat_steps, loss, data_range).
+    """
+    from .field.feature_field import FeatureField
+
+    hdr = float(values.max()) > 1.0
+    if loss == "auto":
+        loss = "relmse" if hdr else "mse"
+    if hdr and float(values.min()) > -1.0:
+        model_kw = {"transform": "log", **model_kw}
+    steps = DEFAULT_STEPS if steps is None else steps
+    if qat_steps is None:
+        qat_steps = round(DEFAULT_QAT_FRACTION * steps) if isinstance(steps, int) else 0
+    field = FeatureField(mesh, dim=dim, seed=seed, device=device)
+    model = FieldModel(field, list(channels), seed=seed, **model_kw)
+    mean = torch.from_numpy(values.mean(axis=0, dtype=np.float64))
+    with torch.no_grad():  # start at the mean value: HDR values are far from the MLP's initial output
+        out_bias = model.decoder.linears()[-1].bias
+        out_bias.copy_(torch.log1p(mean.clamp_min(0)) if model.transform == "log" else mean)
+    data_range = max(float(values.max() - values.min()), 1e-12) if loss == "relmse" else 1.0
+    return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range}
+
+
+class _ShuffledPoints:
+    """Stateful sampler: every sample once per epoch, in a fresh random order (the fit's generator)."""
+
+    def __init__(self, xy: Tensor, values: Tensor, batch_size: int, cache):
+        self.xy, self.values, self.batch_size, self.cache = xy, values, batch_size, cache
+        self.order = torch.empty(0, dtype=torch.int64)
+        self.pos = 0
+
+    def __call__(self, step: int, generator: torch.Generator):
+        n = len(self.xy)
+        parts, need = [], self.batch_size
+        while need:
+            if self.pos == len(self.order):
+                self.order, self.pos = torch.randperm(n, generator=generator), 0
+            take = min(need, n - self.pos)
+            parts.append(self.order[self.pos : self.pos + take])
+            self.pos += take
+            need -= take
+        rows = torch.cat(parts).to(self.xy.device)
+        if self.cache is None:
+            return self.xy[rows], self.values[rows]
+        idx, w = self.cache
+        return self.xy[rows], self.values[rows], (idx[rows], w[rows])
+
+
+def point_sampler(xy, values, batch_size: int, *, device: str = "cpu", query=None) -> Sampler:
+    """Sampler over scattered samples, e.g. walk-on-spheres estimates (``dfc.samples.SampleSet``).
+
+    Each epoch visits every sample once, in a random order drawn from the generator ``fit`` hands it; the
+    target is the sample's value as given (noisy values and repeated positions are fine: the MSE fit
+    averages them).
+
+    Parameters
+    ----------
+    xy : (N, 2) float positions in domain units; values : (N, C) float targets (signal space)
+    batch_size : samples per call
+    query : optional ``field.query``; when given, every sample is located once here and each call also
+        returns the batch's (idx, w) for ``FieldModel.forward(query=...)`` (about 100 bytes per sample)
+
+    Returns
+    -------
+    ``sampler(step, generator) -> (xy (B, 2) float64, target (B, C) float32[, (idx, w)])``
+    """
+    if not isinstance(batch_size, int) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+    xy = torch.as_tensor(np.ascontiguousarray(xy, dtype=np.float64)).to(device)
+    values = torch.as_tensor(np.ascontiguousarray(values, dtype=np.float32)).to(device)
+    if xy.ndim != 2 or xy.shape[1] != 2 or values.ndim != 2 or len(values) != len(xy) or len(xy) == 0:
+        raise ValueError(f"expected xy (N, 2) and values (N, C) with N ≥ 1, got {tuple(xy.shape)} and "
+                         f"{tuple(values.shape)}")
+    cache = None
+    if query is not None:
+        with torch.no_grad():
+            parts = [query(xy[s : s + QUERY_CHUNK]) for s in range(0, len(xy), QUERY_CHUNK)]
+        cache = (torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
+    return _ShuffledPoints(xy, values, batch_size, cache)
+
+
+def fit_samples(
+    samples,
+    mesh,
+    *,
+    steps: int | None = None,
+    batch_size: int = 1 << 14,
+    dim: int = 5,
+    seed: int = 0,
+    loss: str = "auto",
+    device: str = "cpu",
+    qat_steps: int | None = None,
+    feature_bits: int = 8,
+    callback: Callable[[int, float, float], None] | None = None,
+    channels: list[str] | None = None,
+    lr: float = 1e-2,
+    final_lr: float | None = 1e-3,
+    **model_kw,
+) -> FieldModel:
+    """Fit a ``FieldModel`` on ``mesh`` to a sample set (noisy values at scattered, possibly repeated points).
+
+    Parameters
+    ----------
+    samples : dfc.samples.SampleSet (validated here); its points must lie in ``mesh.domain``
+    mesh : dfc.mesh.Mesh
+    steps : optimiser steps (default ``DEFAULT_STEPS``)
+    batch_size : samples per step (shuffled epochs, see ``point_sampler``)
+    dim, seed, qat_steps, feature_bits, callback, lr, final_lr, **model_kw : as in ``fit_image``
+    loss : {"auto", "mse", "relmse"}; "auto" is "relmse" when some value is > 1 (HDR), else "mse"
+    channels : output channel names (default: the sample set's, else ``dfc.samples.default_channels``)
+
+    Returns
+    -------
+    FieldModel, in evaluation mode; quantised mode stays on when ``qat_steps > 0``. The output bias starts
+    at the samples' mean.
+    """
+    from .samples import check_samples, default_channels
+
+    samples = check_samples(samples)
+    x0, y0, x1, y1 = mesh.domain
+    xy = samples.xy
+    outside = (xy[:, 0] < x0) | (xy[:, 0] > x1) | (xy[:, 1] < y0) | (xy[:, 1] > y1)
+    if outside.any():
+        raise InputError(f"samples: {int(outside.sum())} points lie outside the mesh's domain {mesh.domain}")
+    values = samples.values
+    if channels is None:
+        channels = samples.channels or default_channels(values.shape[1])
+    model, run = _start(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, model_kw)
+    cached = len(xy) <= MAX_CACHED_SAMPLES
+    sampler = point_sampler(xy, values, batch_size, device=device, query=model.field.query if cached else None)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
+    return model
+
+
+__all__ += ["fit_samples", "point_sampler"]
