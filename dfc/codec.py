@@ -293,13 +293,14 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     ``bits_per_pixel`` counts bits per sample.
     """
     from .fit import fit_samples
+    from .samples import default_channels
 
     settings = settings or EncodeSettings()
     domain = getattr(samples, "domain", None)
     if domain is not None and not np.allclose(domain, curves.domain, rtol=1e-9, atol=0):
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
     values = np.asarray(samples.values, dtype=np.float32)
-    channels = samples.channels or [f"c{k}" for k in range(values.shape[1])]
+    channels = samples.channels or default_channels(values.shape[1])
     seconds: dict[str, float] = {}
     clock = time.perf_counter()
     mesh = _size_mesh(curves, settings, channels)

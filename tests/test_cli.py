@@ -195,3 +195,29 @@ def test_help_for_every_command(capsys):
     for cmd in ("encode", "decode", "zoom", "stats", "mesh"):
         code, out, _ = run([cmd, "--help"], capsys)
         assert code == 0 and "Usage: dfc " + cmd in out and "--" in out
+
+
+def test_encode_a_sample_set(tmp_path, capsys):
+    from dfc.samples import SampleSet, write_samples
+
+    scene = sample_scene()
+    rng = np.random.default_rng(0)
+    xy = rng.random((20000, 2)) * 256
+    noisy = scene.value(xy) + rng.normal(0, 0.05, (len(xy), 3))
+    write_samples(tmp_path / "s.npz", SampleSet(xy, noisy.astype(np.float32), (0.0, 0.0, 256.0, 256.0),
+                                                ["R", "G", "B"]))
+    out = tmp_path / "s.dfield"
+    code, stdout, err = run(["encode", tmp_path / "s.npz", "--curves", SAMPLES / "sample.json", "-o", out,
+                             "--steps", "80", "--batch-size", "4096", "--max-triangles", "600", "-q"], capsys)
+    assert code == 0, err
+    assert "bits per sample" in stdout
+    model = load(out)
+    probe = rng.random((2000, 2)) * 256
+    with torch.no_grad():
+        got = model(torch.from_numpy(probe)).numpy()
+    assert psnr(scene.value(probe), got, data_range=1.0) > 22.0  # the samples themselves are at 26 dB
+    code, stdout, _ = run(["stats", out, "--json"], capsys)
+    assert code == 0 and json.loads(stdout)["bits_per_pixel"] is None
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", SAMPLES / "sample.json", "-o", out,
+                        "--channels", "R"], capsys)
+    assert_one_line_error(code, err, "--channels")
