@@ -26,8 +26,12 @@ __all__ = ["PointLocator", "CELLS_PER_TRIANGLE"]
 CELLS_PER_TRIANGLE = 32.0
 """Grid resolution: about this many cells per triangle (fewer candidates per cell vs. a larger table)."""
 
+LOCATE_CHUNK = 1 << 16
+"""Queries located per block."""
 MISS_CHUNK = 1 << 15
 """Queries whose first candidate misses are resolved this many at a time (bounds the (M, K, 6) gather)."""
+MISS_WINDOW = 3
+"""Later candidates tested in the first window; each further window is twice as wide."""
 
 _MARGIN = 1e-9
 """Cell/triangle overlap is kept within this fraction of the cell size, so boundary rounding never drops a triangle."""
@@ -130,6 +134,12 @@ class PointLocator(nn.Module):
     def forward(self, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Locate points xy (N, 2) float64 (already clamped): triangle (N,) int64 holding each and the
         barycentric coordinates (N, 3) float64 there (not differentiable; see ``barycentric``)."""
+        if len(xy) > LOCATE_CHUNK:  # blocks keep the temporaries small enough to be reused, not page-faulted in
+            parts = [self._locate(xy[s:s + LOCATE_CHUNK]) for s in range(0, len(xy), LOCATE_CHUNK)]
+            return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
+        return self._locate(xy)
+
+    def _locate(self, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         x0, y0, _, _ = self.domain
         ny, nx = self.grid_shape
         ix = torch.floor((xy[:, 0] - x0) / self.cell_size).long().clamp_(0, nx - 1)
@@ -142,22 +152,40 @@ class PointLocator(nn.Module):
         miss = torch.nonzero((bary.amin(1) < 0) & (count > 1)).squeeze(1)
         for lo in range(0, miss.numel(), MISS_CHUNK):
             rows = miss[lo:lo + MISS_CHUNK]
-            tri[rows], bary[rows] = self._candidates(xy.index_select(0, rows), start[rows], count[rows])
+            tri[rows], bary[rows] = self._candidates(xy.index_select(0, rows), start[rows], count[rows],
+                                                     tri[rows], bary[rows])
         return tri, bary
 
-    def _candidates(self, xy: torch.Tensor, start: torch.Tensor, count: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Resolve queries (M, 2) against all their cell's candidates at once: the first candidate (in cell order)
-        that holds the query, else the one with the largest minimum barycentric coordinate."""
-        k = torch.arange(int(count.max()), device=xy.device)
-        valid = k < count[:, None]                                                      # (M, K)
-        pos = torch.where(valid, start[:, None] + k, start[:, None])
-        cand = self.cell_triangles[pos].long()                                          # (M, K)
-        m = self.tri_affine[cand]                                                       # (M, K, 6)
-        dx, dy = xy[:, None, 0] - m[..., 0], xy[:, None, 1] - m[..., 1]
-        l1 = m[..., 2] * dx + m[..., 3] * dy
-        l2 = m[..., 4] * dx + m[..., 5] * dy
-        score = torch.minimum(torch.minimum(l1, l2), 1.0 - l1 - l2).masked_fill(~valid, -torch.inf)
-        inside = score >= 0
-        pick = torch.where(inside.any(1), inside.to(torch.uint8).argmax(1), score.argmax(1))[:, None]
-        l1, l2 = l1.gather(1, pick)[:, 0], l2.gather(1, pick)[:, 0]
-        return cand.gather(1, pick)[:, 0], torch.stack([1.0 - l1 - l2, l1, l2], dim=1)
+    def _candidates(self, xy: torch.Tensor, start: torch.Tensor, count: torch.Tensor, tri: torch.Tensor,
+                    bary: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Resolve queries (M, 2) whose first candidate ``tri`` (barycentric ``bary``) misses: the first later
+        candidate (in cell order) that holds the query, else the one with the largest minimum barycentric
+        coordinate. Candidates are tested in windows of doubling width, all queries of a window at once."""
+        best = bary.amin(1)
+        active = torch.arange(len(xy), device=xy.device)
+        k0, width = 1, MISS_WINDOW
+        while active.numel():
+            k = k0 + torch.arange(width, device=xy.device)
+            valid = k < count[active, None]                                           # (A, W)
+            pos = torch.where(valid, start[active, None] + k, start[active, None])
+            cand = self.cell_triangles[pos].long()                                    # (A, W)
+            m = self.tri_affine[cand]                                                 # (A, W, 6)
+            p = xy[active]
+            dx, dy = p[:, None, 0] - m[..., 0], p[:, None, 1] - m[..., 1]
+            l1 = m[..., 2] * dx + m[..., 3] * dy
+            l2 = m[..., 4] * dx + m[..., 5] * dy
+            score = torch.minimum(torch.minimum(l1, l2), 1.0 - l1 - l2).masked_fill(~valid, -torch.inf)
+            inside = score >= 0
+            found = inside.any(1)
+            pick = torch.where(found, inside.to(torch.uint8).argmax(1), score.argmax(1))[:, None]
+            top = score.gather(1, pick)[:, 0]
+            better = found | (top > best[active])
+            upd = active[better]
+            l1, l2 = l1.gather(1, pick)[better, 0], l2.gather(1, pick)[better, 0]
+            tri[upd] = cand.gather(1, pick)[better, 0]
+            bary[upd] = torch.stack([1.0 - l1 - l2, l1, l2], dim=1)
+            best[upd] = top[better]
+            k0 += width
+            active = active[~found & (count[active] > k0)]
+            width *= 2
+        return tri, bary
