@@ -12,17 +12,10 @@ from dfc.fit import image_sampler
 from dfc.metrics import psnr
 from dfc.scenes import shapes_scene
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 DOMAIN = (0.0, 0.0, 256.0, 256.0)
 RGB = ["R", "G", "B"]
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Small tensors: one thread avoids OpenMP overhead on a shared machine (restored afterwards)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-import torch
 from click.testing import CliRunner
 from PIL import Image as PILImage
 
@@ -14,16 +13,9 @@ from dfc.cli import cli
 from dfc.errors import InputError
 from dfc.scenes import SCENES
 
+pytestmark = pytest.mark.usefixtures("one_thread")
+
 TINY = ["--size", "32", "--steps", "4", "--batch-size", "512", "--render", "16", "--spp", "1", "-q"]
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Small tensors: one thread avoids OpenMP overhead on a shared machine (restored afterwards)."""
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def test_zoom_windows_are_centred_and_inside_the_domain():

@@ -38,6 +38,13 @@ WINDOW = _Numbers(4, "x0,y0,x1,y1")
 POINT = _Numbers(2, "X,Y")
 
 
+def positive(ctx, param, value):
+    """click callback: None or a number > 0."""
+    if value is not None and not value > 0:
+        raise click.BadParameter(f"must be > 0, got {value}")
+    return value
+
+
 def check_size(size, param_hint="'--size'") -> tuple[int, int] | None:
     if size is not None and not all(1 <= v <= MAX_IMAGE_SIDE for v in size):
         raise click.BadParameter(f"width and height must be in 1..{MAX_IMAGE_SIDE}, got {size[0]}x{size[1]}",

@@ -7,17 +7,13 @@ from pathlib import Path
 
 import click
 
-
-def _positive(ctx, param, value):
-    if value is not None and not value > 0:
-        raise click.BadParameter(f"must be > 0, got {value}")
-    return value
+from ._options import positive
 
 
 @click.command()
 @click.argument("curves_path", metavar="CURVES", type=click.Path(exists=True, dir_okay=False))
-@click.option("--max-area", type=float, callback=_positive, help="Largest triangle area, in the curves' units².")
-@click.option("--edge-length", type=float, callback=_positive, help="Target edge length, in the curves' units.")
+@click.option("--max-area", type=float, callback=positive, help="Largest triangle area, in the curves' units².")
+@click.option("--edge-length", type=float, callback=positive, help="Target edge length, in the curves' units.")
 @click.option("--grading", type=click.FloatRange(min=0.0), help="Growth of the edge length per unit distance from the curves.")
 @click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on the number of triangles.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),

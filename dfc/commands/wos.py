@@ -7,13 +7,9 @@ from pathlib import Path
 
 import click
 
+from ._options import positive
+
 REFERENCE_FORMATS = (".exr", ".npz")
-
-
-def _positive(ctx, param, value):
-    if value is not None and not value > 0:
-        raise click.BadParameter(f"must be > 0, got {value}")
-    return value
 
 
 @click.command()
@@ -24,7 +20,7 @@ def _positive(ctx, param, value):
               help="Pixels on the long side of the sampling grid (the short side follows the domain's aspect).")
 @click.option("--spp", type=click.IntRange(min=1), default=11, show_default=True,
               help="Walks per pixel (one jittered point per pixel per pass).")
-@click.option("--eps", type=float, callback=_positive, default=None,
+@click.option("--eps", type=float, callback=positive, default=None,
               help="Stopping distance to the curves, in the scene's units [default: 1e-4 × domain diagonal].")
 @click.option("--max-steps", type=click.IntRange(min=1), default=None,
               help="Cap on the steps of one walk [default: 1000]; capped walks are counted.")
