@@ -228,7 +228,8 @@ def end_tangents(cp) -> tuple[np.ndarray, np.ndarray]:
         ok = norms > eps[:, None]
         k = np.argmax(ok, axis=1)
         rows = np.arange(len(cp))
-        v = diffs[rows, k] / norms[rows, k][:, None]
+        with np.errstate(divide="ignore", invalid="ignore"):  # rows with no distinct point become NaN below
+            v = diffs[rows, k] / norms[rows, k][:, None]
         v[~ok.any(axis=1)] = np.nan
         return v
 
@@ -321,7 +322,7 @@ def self_intersections(cp) -> np.ndarray:
     A, B, C = c, 3.0 * b, 3.0 * a
     den = _cross(A, B)
     scale = np.maximum.reduce([np.abs(A).sum(1), np.abs(B).sum(1), np.abs(C).sum(1)]) ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # den ≈ 0 rows are dropped below
         sigma = -_cross(A, C) / den
         pi = sigma * sigma + (A * (B * sigma[:, None] + C)).sum(1) / (A * A).sum(1)
         root = np.sqrt(sigma * sigma - 4.0 * pi)
