@@ -97,16 +97,21 @@ def check_interiors(field: FeatureField, n: int = 2000, seed: int = 0) -> None:
 
 
 def jumps_around(field: FeatureField, vertices: np.ndarray, radius: np.ndarray, samples: int = 1024,
-                 rounds: int = 30) -> np.ndarray:
-    """Number of persistent jumps of F on a circle around each vertex (K,) -> (K,) int."""
+                 rounds: int = 30, extra: np.ndarray | None = None) -> np.ndarray:
+    """Number of persistent jumps of F on a circle around each vertex (K,) -> (K,) int.
+
+    extra : optional (K, m) angles sampled besides the ``samples`` uniform ones (so that two discontinuities
+    closer than the uniform spacing still have a sample between them)."""
     mesh = field.mesh
     c = mesh.vertices[vertices]
-    ang = np.linspace(0, 2 * np.pi, samples + 1)
-    pts = c[:, None] + radius[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)[None]
-    f = evaluate(field, pts.reshape(-1, 2)).reshape(len(vertices), samples + 1, -1)
+    ang = np.broadcast_to(np.linspace(0, 2 * np.pi, samples + 1), (len(vertices), samples + 1))
+    if extra is not None:
+        ang = np.sort(np.concatenate([ang, np.mod(extra, 2 * np.pi)], axis=1), axis=1)
+    pts = c[:, None] + radius[:, None, None] * np.stack([np.cos(ang), np.sin(ang)], -1)
+    f = evaluate(field, pts.reshape(-1, 2)).reshape(len(vertices), ang.shape[1], -1)
     d = np.linalg.norm(np.diff(f, axis=1), axis=2)
     k, j = np.nonzero(d > JUMP)
-    lo, hi = ang[j], ang[j + 1]
+    lo, hi = ang[k, j], ang[k, j + 1]
     flo, fhi = f[k, j], f[k, j + 1]
 
     def at(kk, a):
@@ -120,6 +125,24 @@ def jumps_around(field: FeatureField, vertices: np.ndarray, radius: np.ndarray, 
         lo, flo = np.where(left, lo, mid), np.where(left[:, None], flo, fm)
     persistent = np.linalg.norm(fhi - flo, axis=1) > JUMP
     return np.bincount(k[persistent], minlength=len(vertices))
+
+
+def _bisectors(mesh, vertices: np.ndarray) -> np.ndarray:
+    """(K, m) angles halfway between consecutive incident discontinuity directions (edges; curves by their
+    chords and end tangents) around each vertex, padded by repetition."""
+    v = mesh.vertices
+    cp = np.asarray(mesh.curve_control_points, np.float64).reshape(-1, 4, 2)
+    ends = mesh.curve_endpoints
+    rays = [(a, v[b]) for a, b in mesh.disc_edges] + [(b, v[a]) for a, b in mesh.disc_edges]
+    rays += [(ends[i, 0], p) for i in range(len(ends)) for p in (v[ends[i, 1]], cp[i, 1], cp[i, 2])]
+    rays += [(ends[i, 1], p) for i in range(len(ends)) for p in (v[ends[i, 0]], cp[i, 2], cp[i, 1])]
+    out = []
+    for vertex in vertices:
+        d = np.array([p - v[vertex] for a, p in rays if a == vertex and np.any(p != v[vertex])]).reshape(-1, 2)
+        a = np.sort(np.arctan2(d[:, 1], d[:, 0]))
+        out.append(0.5 * (a + np.roll(a, -1) + np.where(np.arange(len(a)) == len(a) - 1, 2 * np.pi, 0.0)))
+    width = max(1, max(len(o) for o in out))
+    return np.array([np.resize(o, width) if len(o) else np.zeros(width) for o in out])
 
 
 def check_vertex_circles(field: FeatureField) -> None:
@@ -141,7 +164,7 @@ def check_vertex_circles(field: FeatureField) -> None:
     for e in edge_set(mesh.disc_edges):
         expected[list(e)] += 1
     np.add.at(expected, mesh.curve_endpoints.reshape(-1), 1)
-    got = jumps_around(field, inner, 0.04 * radius[inner])
+    got = jumps_around(field, inner, 0.04 * radius[inner], extra=_bisectors(mesh, inner))
     bad = np.flatnonzero(got != expected[inner])
     assert len(bad) == 0, (f"vertex {inner[bad[0]]}: {got[bad[0]]} jumps around it, expected "
                            f"{expected[inner[bad[0]]]}")
