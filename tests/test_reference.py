@@ -5,25 +5,12 @@ from dfc.curves import Curves, SideValues, elevate
 from dfc.errors import InputError
 from dfc.reference import reference_solution, solve_reference
 
-X1, X2 = 16.3, 47.77  # two vertical lines across a 64 × 64 canvas, off the grid nodes
-OUTER_LEFT, STRIP_LEFT, STRIP_RIGHT, OUTER_RIGHT = 0.7, 0.0, 1.0, 0.2
+from _laplace import OUTER_LEFT, OUTER_RIGHT, X1, X2, two_lines
 
 
 def _const(v) -> SideValues:
     v = np.atleast_2d(np.asarray(v, dtype=np.float64))
     return SideValues(np.zeros(1), v, np.zeros(1), v)
-
-
-def _sides(left, right) -> SideValues:
-    return SideValues(np.zeros(1), np.atleast_2d(np.asarray(left, float)), np.zeros(1),
-                      np.atleast_2d(np.asarray(right, float)))
-
-
-def two_lines() -> Curves:
-    """Lines x = X1, X2 drawn downwards (their left is +x): u is constant outside and linear between them."""
-    lines = np.array([[[X1, 0.0], [X1, 64.0]], [[X2, 0.0], [X2, 64.0]]])
-    return Curves((0, 0, 64, 64), elevate(lines, 1), [1, 1], [0, 1], [[0, 1], [0, 1]], ["x1", "x2"],
-                  [_sides([STRIP_LEFT], [OUTER_LEFT]), _sides([OUTER_RIGHT], [STRIP_RIGHT])])
 
 
 def two_lines_exact(xy: np.ndarray) -> np.ndarray:

@@ -8,29 +8,16 @@ from hypothesis import strategies as st
 
 from dfc import bezier
 from dfc.cli import cli, main
-from dfc.curves import Curves, SideValues, elevate, read_curves
+from dfc.curves import Curves, read_curves
 from dfc.errors import InputError
 from dfc.reference import solve_reference
 from dfc.samples import read_samples
 from dfc.wos import GRID_CELLS, Scene, grid_size, reflect, sample_scene, walk_on_spheres
 
+from _laplace import OUTER_LEFT, X1, X2, sides, two_lines
 from conftest import SAMPLES
 
 SCENE = SAMPLES / "diffusion_small.json"
-X1, X2 = 16.3, 47.77
-OUTER_LEFT, OUTER_RIGHT = 0.7, 0.2
-
-
-def _sides(left, right) -> SideValues:
-    return SideValues(np.zeros(1), np.atleast_2d(np.asarray(left, float)), np.zeros(1),
-                      np.atleast_2d(np.asarray(right, float)))
-
-
-def two_lines() -> Curves:
-    """Lines x = X1, X2 drawn downwards (their left is +x); u = 0.7 | (x − X1) / (X2 − X1) | 0.2."""
-    lines = np.array([[[X1, 0.0], [X1, 64.0]], [[X2, 0.0], [X2, 64.0]]])
-    return Curves((0, 0, 64, 64), elevate(lines, 1), [1, 1], [0, 1], [[0, 1], [0, 1]], ["x1", "x2"],
-                  [_sides([0.0], [OUTER_LEFT]), _sides([OUTER_RIGHT], [1.0])])
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +82,7 @@ def test_annulus_matches_the_exact_solution():
 
     cp = np.concatenate([circle(8.0), circle(20.0)])
     t = np.tile(np.arange(8), 2)
-    one, zero = _sides([1.0], [1.0]), _sides([0.0], [0.0])
+    one, zero = sides([1.0], [1.0]), sides([0.0], [0.0])
     scene = Scene(Curves((0, 0, 64, 64), cp, np.full(16, 3), np.repeat([0, 1], 8), np.stack([t, t + 1], 1),
                          ["inner", "outer"], [one, zero]))
     pts = np.array([[32.0 + 11.0, 32.0], [32.0, 32.0 - 16.0]])
