@@ -222,6 +222,20 @@ def _encoder_info(settings: EncodeSettings, source: str, extra: dict) -> dict:
     return {"software": f"dfc {__version__}", "source": source, **asdict(settings), **extra}
 
 
+def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, channels: list[str], callback):
+    """Build the decoder-view mesh, then fit ``fit_fn`` (``fit_image`` or ``fit_samples``) to ``signal`` on it.
+    Returns (model, seconds per stage)."""
+    clock = time.perf_counter()
+    mesh = _size_mesh(curves, settings, channels)
+    seconds = {"mesh_s": time.perf_counter() - clock}
+    clock = time.perf_counter()
+    model = fit_fn(signal, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
+                   seed=settings.seed, loss=settings.loss, device=settings.device, qat_steps=settings.qat_steps,
+                   feature_bits=settings.feature_bits, callback=callback, channels=channels)
+    seconds["fit_s"] = time.perf_counter() - clock
+    return model, seconds
+
+
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
             truth: Callable[[object], tuple[np.ndarray, np.ndarray]], data_range: float):
     """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth``."""
@@ -263,21 +277,14 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     """
     from .fit import _check_pixels, fit_image
     from .render import render
+    from .samples import default_channels
 
     settings = settings or EncodeSettings()
     pixels = _check_pixels(image)
     h, w, c = pixels.shape
-    channels = getattr(image, "channels", None)
+    channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
-    seconds: dict[str, float] = {}
-    clock = time.perf_counter()
-    mesh = _size_mesh(curves, settings, channels or [f"c{k}" for k in range(c)])
-    seconds["mesh_s"] = time.perf_counter() - clock
-    clock = time.perf_counter()
-    model = fit_image(image, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
-                      seed=settings.seed, loss=settings.loss, device=settings.device, qat_steps=settings.qat_steps,
-                      feature_bits=settings.feature_bits, callback=callback, channels=channels)
-    seconds["fit_s"] = time.perf_counter() - clock
+    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback)
     hdr = float(pixels.max()) > 1.0
     data_range = float(pixels.max() - pixels.min()) if hdr else 1.0
     info = _encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h, "hdr": hdr})
@@ -301,15 +308,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
     values = np.asarray(samples.values, dtype=np.float32)
     channels = samples.channels or default_channels(values.shape[1])
-    seconds: dict[str, float] = {}
-    clock = time.perf_counter()
-    mesh = _size_mesh(curves, settings, channels)
-    seconds["mesh_s"] = time.perf_counter() - clock
-    clock = time.perf_counter()
-    model = fit_samples(samples, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
-                        seed=settings.seed, loss=settings.loss, device=settings.device, qat_steps=settings.qat_steps,
-                        feature_bits=settings.feature_bits, callback=callback, channels=channels)
-    seconds["fit_s"] = time.perf_counter() - clock
+    model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, channels, callback)
     xy = np.asarray(samples.xy, dtype=np.float64)
 
     def truth(m):
