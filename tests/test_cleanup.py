@@ -222,6 +222,16 @@ def assert_same_union(inp: Curves, out: Curves):
 # ------------------------------------------------------------------------------------------------- tests
 
 
+def assert_clean_invariants(curves, out):
+    """Everything ``clean`` promises about its output ``out`` for the input ``curves``."""
+    assert_vertices_exact(out)
+    assert_no_shared_chords(out)
+    assert_graphs_over_chords(out)
+    assert_maps_back(curves, out)
+    assert_same_union(curves, out)
+    assert_meet_only_at_end_points(out)
+
+
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenes)
 def test_clean_properties(curves):
@@ -230,12 +240,7 @@ def test_clean_properties(curves):
     assert set(np.unique(out.degree)) <= {1, 2, 3}
     assert ((out.degree == 1) | (curves.degree[out.curve] == out.degree)).all()
     assert (out.t_range[:, 0] < out.t_range[:, 1]).all()
-    assert_vertices_exact(out)
-    assert_no_shared_chords(out)
-    assert_graphs_over_chords(out)
-    assert_maps_back(curves, out)
-    assert_same_union(curves, out)
-    assert_meet_only_at_end_points(out)
+    assert_clean_invariants(curves, out)
 
 
 @pytest.mark.shared
@@ -244,12 +249,7 @@ def test_clean_shared_data(shared_data, name):
     curves = read_curves(shared_data / name)
     out = clean(curves)
     assert len(out) >= 1
-    assert_vertices_exact(out)
-    assert_no_shared_chords(out)
-    assert_graphs_over_chords(out)
-    assert_maps_back(curves, out)
-    assert_same_union(curves, out)
-    assert_meet_only_at_end_points(out)
+    assert_clean_invariants(curves, out)
 
 
 def _single(points, degree, domain=DOMAIN):
