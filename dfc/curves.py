@@ -115,6 +115,30 @@ def elevate(points: np.ndarray, degree: int) -> np.ndarray:
     raise ValueError(f"degree must be 1, 2 or 3, got {degree}")
 
 
+def split_pieces(curves: Curves, max_length: float, *, lines: bool = False, curved: bool = True) -> Curves:
+    """``curves`` with its pieces cut into equal parameter parts at most ``max_length`` long.
+
+    Lengths are of the control polygon (≥ the arc length), in domain units; ``curved`` and ``lines`` choose
+    which pieces are cut (by default only curved ones). ``t_range`` follows the cut, so names, side values and
+    the input curves' parameter ``s`` are unchanged.
+    """
+    from . import bezier
+
+    if not max_length > 0:
+        raise ValueError(f"max_length must be positive, got {max_length!r}")
+    cp = curves.control_points
+    length = np.linalg.norm(np.diff(cp, axis=1), axis=2).sum(axis=1)
+    chosen = np.where(curves.degree == DEGREE_LINE, lines, curved)
+    parts = np.where(chosen, np.maximum(1, np.ceil(length / max_length)), 1).astype(np.int64)
+    piece = np.repeat(np.arange(len(cp)), parts)
+    k = np.arange(len(piece)) - np.repeat(np.cumsum(parts) - parts, parts)
+    t0, t1 = k / parts[piece], (k + 1) / parts[piece]
+    s0, s1 = curves.t_range[piece, 0], curves.t_range[piece, 1]
+    return Curves(curves.domain, bezier.subsegment(cp[piece], t0, t1), curves.degree[piece], curves.curve[piece],
+                  np.stack([s0 + t0 * (s1 - s0), s0 + t1 * (s1 - s0)], axis=1), curves.names, curves.sides,
+                  curves.source)
+
+
 def read_curves(path: str | Path) -> Curves:
     """Read a curves file, choosing the reader by extension: ``.svg``, ``.json``, ``.xml``.
 

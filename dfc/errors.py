@@ -17,6 +17,14 @@ class MeshError(DfcError, ValueError):
     """A triangulation cannot be built or breaks one of its invariants (see ``Mesh.validate``)."""
 
 
+class TriangleBudgetError(MeshError):
+    """``max_triangles`` is below what the curves force; ``needed`` is that smallest triangle count."""
+
+    def __init__(self, message: str, needed: int):
+        super().__init__(message)
+        self.needed = int(needed)
+
+
 class InputError(DfcError, ValueError):
     """An image or sample input is unreadable or unusable (NaN pixels, mismatched domain, ...)."""
 

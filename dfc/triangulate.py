@@ -4,7 +4,8 @@ Every line piece becomes exactly one mesh edge and every curved piece lies insid
 two corners are the piece's endpoints. The recipe:
 
 1. clean-up (``dfc.cleanup.clean``): pieces meet only at shared endpoints and every curved piece is a
-   convex graph over its chord turning by at most 90°;
+   convex graph over its chord turning by at most 90°; line pieces longer than the nominal edge length
+   are cut into equal parts, so that long straight curves get vertices (and features) along them;
 2. *tangent triangles* (A, X, B), X where the end tangents meet, contain their pieces. Conflict loop:
    halve (``dfc.bezier.split``) every piece whose tangent triangle leaves the domain, overlaps another
    tangent triangle, crosses a line piece or contains a vertex, until none does;
@@ -28,8 +29,8 @@ from scipy.spatial import cKDTree
 
 from . import bezier
 from .cleanup import clean
-from .curves import Curves
-from .errors import MeshError
+from .curves import Curves, split_pieces
+from .errors import MeshError, TriangleBudgetError
 from .mesh import Mesh, min_side_distance
 from .tolerances import tol
 
@@ -92,6 +93,8 @@ def triangulate(
     stats = {} if stats is None else stats
     clock = time.perf_counter()
     pieces = clean(curves)
+    pieces = split_pieces(pieces, _line_length(pieces.domain, max_area, edge_length, max_triangles),
+                          lines=True, curved=False)
     stats["clean_s"] = time.perf_counter() - clock
     stats["pieces_in"], stats["pieces_clean"] = len(curves), len(pieces)
 
@@ -126,9 +129,9 @@ def triangulate(
     n_border = int(_on_border(points, domain).sum())
     floor_count = 2 * len(points) - n_border - 2
     if max_triangles is not None and floor_count > max_triangles:
-        raise MeshError(
+        raise TriangleBudgetError(
             f"triangulate: the {len(pieces)} cleaned-up pieces alone need at least {floor_count} triangles, "
-            f"more than max_triangles = {max_triangles}"
+            f"more than max_triangles = {max_triangles}", floor_count
         )
     area0, budget = _size_target(domain, max_area, edge_length, max_triangles, floor_count, n_c)
     target = _target_area(area0, grading, np.concatenate([lines.reshape(-1, 2, 2), cp[:, [0, 3]]]), cp, domain)
@@ -142,8 +145,9 @@ def triangulate(
         steiner = steiner[np.sort(np.random.default_rng(0).permutation(len(steiner))[:keep])]
         mesh, n_apex = _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, curve_piece, apex, domain, eps)
     if max_triangles is not None and mesh.n_triangles > max_triangles:
-        raise MeshError(
-            f"triangulate: the curves alone need {mesh.n_triangles} triangles, more than max_triangles = {max_triangles}"
+        raise TriangleBudgetError(
+            f"triangulate: the curves alone need {mesh.n_triangles} triangles, more than max_triangles = {max_triangles}",
+            mesh.n_triangles,
         )
     stats["cdt_s"] = time.perf_counter() - clock
     stats.update(apexes=n_apex, steiner=len(steiner), vertices=mesh.n_vertices, triangles=mesh.n_triangles)
@@ -176,6 +180,17 @@ def _check_sizes(max_area, edge_length, grading, max_triangles, min_angle) -> No
         raise MeshError(f"triangulate: max_triangles must be an integer >= 2, got {max_triangles!r}")
     if not (0.0 <= min_angle <= _MAX_MIN_ANGLE):
         raise MeshError(f"triangulate: min_angle must be in [0, {_MAX_MIN_ANGLE}] degrees, got {min_angle!r}")
+
+
+def _line_length(domain, max_area, edge_length, max_triangles) -> float:
+    """Longest line piece kept whole: the nominal edge length of the size target (an equilateral triangle of
+    ``max_area``, or of the domain's area over ``max_triangles`` / ``DEFAULT_TRIANGLES``). A line piece is one
+    mesh edge, so a longer one would leave the field along it only its two end vertices' features."""
+    if edge_length is not None:
+        return float(edge_length)
+    x0, y0, x1, y1 = domain
+    area = max_area or (x1 - x0) * (y1 - y0) / (max_triangles or DEFAULT_TRIANGLES)
+    return float(np.sqrt(area / _EQUILATERAL))
 
 
 def _size_target(domain, max_area, edge_length, max_triangles, floor_count, n_curved) -> tuple[float, int]:

@@ -120,3 +120,21 @@ def test_nan_image_is_refused(scene):
     image[5, 6, 0] = np.nan
     with pytest.raises(InputError, match="NaN"):
         encode_image(image, check_domain(scene.curves, 64, 64, fit=True), EncodeSettings(steps=2))
+
+
+def test_sample_sets_size_their_mesh_by_the_sample_count(scene):
+    from dfc.codec import NOISY_SAMPLES_PER_TRIANGLE, _sample_mesh_size
+    from dfc.triangulate import triangulate
+
+    curves = scene.curves
+    floor = triangulate(curves, max_triangles=None).n_triangles  # at least what the curves force
+    many = _sample_mesh_size(curves, EncodeSettings(), 10**9)
+    assert many.max_triangles == 2000  # capped at the default mesh
+    few = _sample_mesh_size(curves, EncodeSettings(), 10)
+    assert 2 < few.max_triangles <= floor
+    assert triangulate(curves, max_triangles=few.max_triangles).n_triangles <= few.max_triangles
+    n = 300 * NOISY_SAMPLES_PER_TRIANGLE
+    middle = _sample_mesh_size(curves, EncodeSettings(), n)
+    assert middle.max_triangles == max(300, few.max_triangles)
+    given = EncodeSettings(max_area=5.0)
+    assert _sample_mesh_size(curves, given, 10) is given  # an explicit mesh size wins

@@ -205,11 +205,11 @@ def test_distance_is_a_tight_lower_bound(small):
     assert np.all(exact - got <= cell + segment / 2 + slack)  # far away: the precomputed grid's bound
 
 
-def test_cut_pieces_keeps_geometry_and_parameters():
-    from dfc.benchmarks.wos import _cut_pieces
+def test_split_pieces_keeps_geometry_and_parameters():
+    from dfc.curves import split_pieces
 
     curves = read_curves(SCENE)
-    cut = _cut_pieces(curves, 3.0)
+    cut = split_pieces(curves, 3.0)
     assert len(cut) > len(curves)
     polygon = np.linalg.norm(np.diff(cut.control_points, axis=1), axis=2).sum(axis=1)
     assert np.all(polygon[cut.degree != 1] <= 3.0 + 1e-9)

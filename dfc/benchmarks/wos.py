@@ -12,10 +12,16 @@ pixel centre), the MSE of
 
 and prints their ratio, the variance-reduction factor (paper: 19.21× at 11 spp).
 
-Before meshing, curved pieces are cut into parts at most ``--piece-length`` pixels long (measured along the
-control polygon). A curved piece lies in one triangle whose sliver between chord and curve carries a single
-curve feature, so a long piece leaves a wide band along the curve with little freedom; on the shipped
-pepper at 128², cutting at 4 px roughly halves the error within 2 px of the curves.
+The field is built the way ``dfc encode SAMPLES.npz`` builds it (``dfc.codec.sample_curves``): curved
+pieces are cut into parts at most 1/64 of the domain's long side (``--piece-length`` overrides, in pixels).
+A curved piece lies in one triangle whose sliver between chord and curve carries a single curve feature, so
+a long piece leaves a wide band along the curve with little freedom; on the shipped pepper at 128², cutting
+at 4 px roughly halves the error within 2 px of the curves.
+
+The fits converge slowly on noisy targets: on the pepper at 256² and 11 spp, 400 steps (lr 5e-3 → 1e-3) give
+a factor of 7.6, 1,500 or 3,000 steps decaying to 1e-4 give 21.5. What remains is the fit's bias, about
+5e-6, mostly near the curves; the variance part shrinks with the pixel count, which is why the paper's
+resolution, 500, is the default.
 
 The MSE is taken over the pixels that no curve crosses (``dfc.fit.edge_pixels``): the raw mean estimates
 a pixel's box average, which equals the centre value up to O(h⁴) for a harmonic function but not in a
@@ -52,24 +58,25 @@ def _odd(ctx, param, value):
 
 @click.command()
 @click.argument("scene_path", metavar="SCENE", type=click.Path(exists=True, dir_okay=False))
-@click.option("--resolution", type=click.IntRange(min=8), default=128, show_default=True,
-              help="Pixels on the long side (the paper uses 500).")
+@click.option("--resolution", type=click.IntRange(min=8), default=500, show_default=True,
+              help="Pixels on the long side (the paper's 500).")
 @click.option("--spp", "spp_list", default="1,4,11,32", show_default=True, callback=_spp_list,
               help="Comma-separated walks per pixel.")
-@click.option("--steps", type=click.IntRange(min=1), default=400, show_default=True,
-              help="Fit steps per spp (more overfit the noise at this sample count).")
+@click.option("--steps", type=click.IntRange(min=1), default=2000, show_default=True,
+              help="Fit steps per spp.")
 @click.option("--max-triangles", type=click.IntRange(min=2), default=2000, show_default=True,
               help="Mesh size of the fitted field.")
-@click.option("--piece-length", type=click.FloatRange(min=0.0), default=4.0, show_default=True,
-              help="Cut curved pieces longer than this many pixels before meshing (0: keep them).")
+@click.option("--piece-length", type=click.FloatRange(min=0.0), default=None,
+              help="Cut curved pieces longer than this many pixels before meshing (0: keep them)  "
+                   "[default: 1/64 of the long side].")
 @click.option("--qat/--no-qat", default=False, show_default=True,
               help="Quantisation-aware final fit steps (8-bit features, as a .dfield file would store).")
 @click.option("--lr", type=click.FloatRange(min=0.0, min_open=True), default=5e-3, show_default=True,
               help="Initial Adam learning rate of the fits (decays geometrically to --final-lr; "
                    "1e-2 sometimes diverges near the curves on noisy samples).")
-@click.option("--final-lr", type=click.FloatRange(min=0.0, min_open=True), default=1e-3, show_default=True,
+@click.option("--final-lr", type=click.FloatRange(min=0.0, min_open=True), default=1e-4, show_default=True,
               help="Learning rate at the last fit step.")
-@click.option("--restarts", type=click.IntRange(min=1), default=2, show_default=True,
+@click.option("--restarts", type=click.IntRange(min=1), default=1, show_default=True,
               help="Fits per spp (seeds seed, seed + 1, ...); the one with the lowest MSE over its own samples is "
                    "kept (an unlucky start sometimes leaves a whole smooth region offset).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Fit batch size.")
@@ -86,7 +93,8 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
     """Variance reduction of a dfc fit over the raw mean of walk-on-spheres samples, per sample count."""
     import torch
 
-    from ..curves import read_curves
+    from ..codec import SAMPLE_PIECE_REL
+    from ..curves import read_curves, split_pieces
     from ..fit import edge_pixels, fit_samples
     from ..reference import solve_reference
     from ..render import render
@@ -109,7 +117,9 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
                            callback=lambda done, total, n: capped.__setitem__(0, n))
     wos_s = time.perf_counter() - clock
     pixel = (scene.domain[2] - scene.domain[0]) / width
-    mesh = triangulate(_cut_pieces(curves, piece_length * pixel) if piece_length > 0 else curves,
+    if piece_length is None:
+        piece_length = max(width, height) * SAMPLE_PIECE_REL
+    mesh = triangulate(split_pieces(curves, piece_length * pixel) if piece_length > 0 else curves,
                        max_triangles=max_triangles)
     clean = ~edge_pixels(mesh, height, width)
     n_pix = width * height
@@ -145,24 +155,6 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
                    f"{row['raw_mse_all']:10.3e} {row['fit_mse_all']:10.3e} {row['factor_all']:6.2f}× {fit_s:6.1f}")
     if json_path:
         write_bytes_atomic(json_path, json.dumps(stats, indent=2).encode())
-
-
-def _cut_pieces(curves, max_length: float):
-    """``curves`` with every curved piece cut into equal parameter parts at most ``max_length`` long (control
-    polygon length); ``t_range`` follows, so side values are unchanged."""
-    from .. import bezier
-    from ..curves import DEGREE_LINE, Curves
-
-    cp = curves.control_points
-    length = np.linalg.norm(np.diff(cp, axis=1), axis=2).sum(axis=1)
-    parts = np.where(curves.degree == DEGREE_LINE, 1, np.maximum(1, np.ceil(length / max_length))).astype(np.int64)
-    piece = np.repeat(np.arange(len(cp)), parts)
-    k = np.arange(len(piece)) - np.repeat(np.cumsum(parts) - parts, parts)
-    t0, t1 = k / parts[piece], (k + 1) / parts[piece]
-    s0, s1 = curves.t_range[piece, 0], curves.t_range[piece, 1]
-    return Curves(curves.domain, bezier.subsegment(cp[piece], t0, t1), curves.degree[piece], curves.curve[piece],
-                  np.stack([s0 + t0 * (s1 - s0), s0 + t1 * (s1 - s0)], axis=1), curves.names, curves.sides,
-                  curves.source)
 
 
 def _sample_mse(model, samples, chunk: int = 1 << 16) -> float:
