@@ -20,6 +20,7 @@ COMMANDS = {
     "benchmark": "benchmark",
     "bench": "bench",
     "wos": "wos",
+    "solve": "solve",
 }
 
 

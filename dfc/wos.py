@@ -86,13 +86,13 @@ def check_scene(curves: Curves) -> int:
     """
     src = f"{curves.source}: " if curves.source else ""
     if len(curves) == 0:
-        raise InputError(f"{src}no curves: walk-on-spheres needs Dirichlet values on at least one curve")
+        raise InputError(f"{src}no curves: a diffusion-curve scene needs Dirichlet values on at least one curve")
     used = np.unique(curves.curve)  # input curves that have pieces
     sides = list(curves.sides) + [None] * max(0, int(used[-1]) + 1 - len(curves.sides))
     missing = [curves.names[i] if i < len(curves.names) else f"curve {i}" for i in used if sides[i] is None]
     if missing:
         raise InputError(f"{src}{', '.join(missing[:3])}{' ...' if len(missing) > 3 else ''}: "
-                         "no side values; walk-on-spheres needs a left and a right value on every curve")
+                         "no side values; a diffusion-curve scene needs a left and a right value on every curve")
     return int(sides[int(curves.curve[0])].left.shape[1])
 
 

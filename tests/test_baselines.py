@@ -188,3 +188,38 @@ def test_relu_field_reaches_hdr_values():
         out = model(_centres(32)).numpy().reshape(32, 32, 3)
     span = float(hdr.max() - hdr.min())
     assert psnr(hdr, out, data_range=span) > 25
+
+
+# -- the physics-informed baselines (dfc solve / dfc bench --solve) ------------------------------------------
+def test_siren_and_tanh_mlp_keep_the_papers_architectures():
+    from dfc.baselines import Siren, TanhMLP
+
+    siren = BASELINES["siren"].for_budget(20_000, DOMAIN, RGB)
+    assert isinstance(siren, Siren) and len(siren.linears) == 6  # 5 sine layers of 256, then the output
+    assert sum(p.numel() for p in siren.parameters()) == (2 * 256 + 256) + 4 * (256 * 256 + 256) + (256 * 3 + 3)
+    assert siren.stored_bytes() == 2 * 264_707  # fixed size, far above the budget: reported as it is
+    bound = np.sqrt(6 / 256) / 30
+    assert siren.linears[0].weight.abs().max() <= 0.5 and 0.9 * bound < siren.linears[2].weight.abs().max() <= bound
+    mlp = BASELINES["tanh_mlp"].for_budget(20_000, DOMAIN, RGB)
+    assert isinstance(mlp, TanhMLP) and mlp.decoder.hidden == 512 and mlp.decoder.layers == 4
+    assert mlp.stored_bytes() == 2 * ((2 * 512 + 512) + 3 * (512 * 512 + 512) + (512 * 3 + 3))
+    xy = _centres(8)
+    for model in (siren, mlp):
+        model.init_mean(torch.tensor([0.2, 0.5, 0.9]))
+        out = model(xy)
+        assert out.shape == (64, 3) and out.dtype == torch.float32
+
+
+@pytest.mark.parametrize("target", [6_000, 20_000])
+def test_tanh_field_meets_the_budget_and_saturates(target):
+    model = BASELINES["tanh_field"].for_budget(target, DOMAIN, RGB)
+    assert 0.97 * target <= model.stored_bytes() <= target
+    model.init_mean(torch.tensor([0.2, 0.5, 0.9]))
+    torch.testing.assert_close(model(_centres(4)), torch.tensor([[0.2, 0.5, 0.9]]).expand(16, 3))
+    with torch.no_grad():
+        model.grid.mul_(100.0)
+    out = model(_centres(4)).detach()
+    assert float(out.max()) <= 1.0 and float(out.min()) >= -1.0  # tanh bounds the output unit
+    xy = _centres(4).requires_grad_(True)
+    (grad,) = torch.autograd.grad(model(xy).sum(), xy, create_graph=True)
+    assert grad.requires_grad  # twice differentiable, unlike the ReLU field's clamp
