@@ -12,6 +12,7 @@ from dfc.wos import Scene
 
 from _laplace import OUTER_LEFT, OUTER_RIGHT, STRIP_LEFT, STRIP_RIGHT, X1, X2, two_lines
 from conftest import SAMPLES
+from test_cli import run
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -101,30 +102,18 @@ def test_boundary_points_sit_beside_the_curves_with_their_side_values():
     assert counts.min() > 0.9 * counts.mean()  # uniform over the domain
 
 
-def _run(argv, capsys):
-    from dfc.cli import main
-
-    try:
-        main([str(a) for a in argv])
-        code = 0
-    except SystemExit as e:
-        code = e.code if isinstance(e.code, int) else 1
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
 def test_cli_solve_writes_a_dfield_that_decodes(tmp_path, capsys):
     out = tmp_path / "small.dfield"
-    code, stdout, _ = _run(["solve", SAMPLES / "diffusion_small.json", "-o", out, "--steps", "6", "--batch-size",
+    code, stdout, _ = run(["solve", SAMPLES / "diffusion_small.json", "-o", out, "--steps", "6", "--batch-size",
                             "256", "--max-triangles", "300", "--compare", "32", "-q"], capsys)
     assert code == 0 and out.is_file()
     assert f"wrote {out}: {out.stat().st_size} bytes" in stdout and "dB" in stdout
     model = load(out)
     assert model.channels == ["R", "G", "B"] and model.header["encoder"]["input"] == "physics-informed solve"
     png = tmp_path / "small.png"
-    code, _, _ = _run(["decode", out, "-o", png, "--size", "32x32"], capsys)
+    code, _, _ = run(["decode", out, "-o", png, "--size", "32x32"], capsys)
     assert code == 0 and png.stat().st_size > 0
-    code, stdout, _ = _run(["stats", out], capsys)
+    code, stdout, _ = run(["stats", out], capsys)
     assert code == 0 and "triangles" in stdout
 
 
@@ -136,14 +125,14 @@ def test_cli_solve_writes_a_dfield_that_decodes(tmp_path, capsys):
 ])
 def test_cli_solve_errors_are_one_line_and_leave_no_file(tmp_path, capsys, args, code, message):
     out = tmp_path / "bad.dfield"
-    got, _, err = _run([*args, "-o", out, "-q"], capsys)
+    got, _, err = run([*args, "-o", out, "-q"], capsys)
     assert got == code and message in err
     assert len([line for line in err.splitlines() if "error" in line.lower()]) == 1
     assert list(tmp_path.iterdir()) == []
 
 
 def test_cli_solve_refuses_other_output_names(tmp_path, capsys):
-    code, _, err = _run(["solve", SAMPLES / "diffusion_small.json", "-o", tmp_path / "x.png"], capsys)
+    code, _, err = run(["solve", SAMPLES / "diffusion_small.json", "-o", tmp_path / "x.png"], capsys)
     assert code == 2 and ".dfield" in err and list(tmp_path.iterdir()) == []
 
 
@@ -151,7 +140,7 @@ def test_bench_solve_writes_the_table_and_contact_sheet(tmp_path, capsys):
     import json
 
     out = tmp_path / "bench"
-    code, stdout, _ = _run(["bench", "--solve", SAMPLES / "diffusion_small.json", "-o", out, "--steps", "3",
+    code, stdout, _ = run(["bench", "--solve", SAMPLES / "diffusion_small.json", "-o", out, "--steps", "3",
                             "--batch-size", "64", "--size", "16", "--max-triangles", "300", "-q"], capsys)
     assert code == 0
     results = json.loads((out / "results.json").read_text())
@@ -162,5 +151,5 @@ def test_bench_solve_writes_the_table_and_contact_sheet(tmp_path, capsys):
     assert all(np.isfinite(r["psnr"]) for r in results["methods"].values())
     assert "| SIREN |" in stdout and (out / "results.md").read_text() == stdout
     assert (out / "contact.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    code, _, err = _run(["bench", "--solve", SAMPLES / "diffusion_small.json", "-o", out, "--probe", "1,1"], capsys)
+    code, _, err = run(["bench", "--solve", SAMPLES / "diffusion_small.json", "-o", out, "--probe", "1,1"], capsys)
     assert code == 2 and "do not apply to --solve" in err
