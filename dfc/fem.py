@@ -70,12 +70,20 @@ def read_fem(path: str | Path, fields: list[str] | None = None) -> FemSolution:
     fields : point-data arrays to keep (a complex array's name selects both its channels; default: all).
     Raises ``InputError`` (message starts with the path) for unreadable files and everything ``from_meshio`` refuses.
     """
+    import contextlib
+    import io
+
     import meshio
 
+    said = io.StringIO()
     try:
-        mesh = meshio.read(str(path))
-    except Exception as e:  # meshio raises many types (ReadError, KeyError, ValueError, …) for bad files
-        raise InputError(f"{path}: not a mesh meshio can read ({type(e).__name__}: {e})") from None
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            mesh = meshio.read(str(path))
+    # meshio raises many types (ReadError, KeyError, ValueError, …) for bad files, and for some formats prints
+    # a message and calls sys.exit
+    except (Exception, SystemExit) as e:
+        reason = said.getvalue().strip().splitlines()[-1:] or [f"{type(e).__name__}: {e}"]
+        raise InputError(f"{path}: not a mesh meshio can read ({reason[0]})") from None
     return from_meshio(mesh, fields, source=str(path))
 
 

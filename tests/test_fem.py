@@ -158,12 +158,15 @@ def test_error_cases(tmp_path, capsys, barrier):
     lines = tmp_path / "lines.vtu"
     meshio.write(lines, meshio.Mesh(np.c_[pts, np.zeros(len(pts))], [("line", np.array([[0, 1]]))]))
     near = write_curves(tmp_path / "near.json", [[[0.5, 0.2], [0.5, 0.8]]])
+    corrupt = tmp_path / "corrupt.vtu"  # meshio prints and calls sys.exit on this one
+    corrupt.write_bytes(b"not a mesh\n")
     out = tmp_path / "o.dfield"
     for argv, match in (
         ([lines, "--curves", near], "no triangle cells"),
         ([path, "--curves", near, "--fields", "u,w"], "no point data named w"),
         ([small_path, "--curves", near], "outside the mesh's extent"),
         ([tmp_path / "b.json", "--curves", near], "not a mesh meshio can read"),
+        ([corrupt, "--curves", near], "not a mesh meshio can read"),
     ):
         code, _, err = run(["encode", *argv, "-o", out, "--steps", "2", "-q"], capsys)
         assert_one_line_error(code, err, match)
