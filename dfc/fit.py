@@ -120,6 +120,57 @@ def fit(
     return history
 
 
+class _Epochs:
+    """Every index of ``range(n)`` once per epoch, in a fresh random order drawn from the fit's generator."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.order = torch.empty(0, dtype=torch.int64)
+        self.pos = self.epoch = 0
+
+    def take(self, count: int, generator: torch.Generator) -> list[tuple[Tensor, int]]:
+        """The next ``count`` indices, as runs (indices (k,) int64, 1-based epoch they belong to)."""
+        parts = []
+        while count:
+            if self.pos == len(self.order):
+                self.order, self.pos = torch.randperm(self.n, generator=generator), 0
+                self.epoch += 1
+            k = min(count, self.n - self.pos)
+            parts.append((self.order[self.pos : self.pos + k], self.epoch))
+            self.pos += k
+            count -= k
+        return parts
+
+
+class _PixelGrid:
+    """Pixel (i, j) of a ``width × height`` raster over ``domain`` covers ``[x0 + i·sx, x0 + (i+1)·sx] × …``."""
+
+    def __init__(self, domain, width: int, height: int):
+        x0, y0, x1, y1 = domain
+        self.width = width
+        self.origin = torch.tensor([x0, y0], dtype=torch.float64)
+        self.pixel_size = torch.tensor([(x1 - x0) / width, (y1 - y0) / height], dtype=torch.float64)
+
+    def points(self, pixel: Tensor, generator: torch.Generator) -> Tensor:
+        """One uniformly jittered point (N, 2) float64 in each of the flat pixel indices ``pixel`` (N,)."""
+        jitter = torch.rand(len(pixel), 2, generator=generator, dtype=torch.float64)
+        ij = torch.stack([pixel % self.width, pixel // self.width], dim=1).to(torch.float64)
+        return self.origin + (ij + jitter) * self.pixel_size
+
+
+def _kept_pixels(height: int, width: int, exclude) -> Tensor:
+    """(n,) int64 flat indices of the pixels not excluded (``exclude``: None or (H, W) bool)."""
+    keep = np.arange(height * width)
+    if exclude is not None:
+        exclude = np.asarray(exclude, dtype=bool)
+        if exclude.shape != (height, width):
+            raise ValueError(f"exclude must have the image's shape {(height, width)}, got {exclude.shape}")
+        keep = keep[~exclude.ravel()]
+        if len(keep) == 0:
+            raise InputError("every pixel is excluded from sampling")
+    return torch.from_numpy(keep)
+
+
 class _StratifiedPixels:
     """Stateful sampler: every pixel once per epoch in a fresh random order, each at a jittered point.
 
@@ -132,44 +183,27 @@ class _StratifiedPixels:
                  keep: Tensor):
         self.pixels = pixels.reshape(-1, pixels.shape[-1])
         self.keep = keep  # (n,) int64 flat indices of the pixels sampled
-        self.height, self.width = pixels.shape[:2]
-        x0, y0, x1, y1 = domain
-        self.origin = torch.tensor([x0, y0], dtype=torch.float64)
-        self.pixel_size = torch.tensor([(x1 - x0) / self.width, (y1 - y0) / self.height], dtype=torch.float64)
+        self.grid = _PixelGrid(domain, pixels.shape[1], pixels.shape[0])
         self.batch_size = batch_size
-        self.order = torch.empty(0, dtype=torch.int64)
-        self.pos = self.epoch = 0
+        self.epochs = _Epochs(len(keep))
         self.cache = None
         if query is not None:
-            xy = torch.cat([self._points(keep, generator) for _ in range(jitter_sets)])
+            xy = torch.cat([self.grid.points(keep, generator) for _ in range(jitter_sets)])
             with torch.no_grad():
                 parts = [query(xy[s : s + QUERY_CHUNK].to(pixels.device)) for s in range(0, len(xy), QUERY_CHUNK)]
             self.cache = (xy, torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
 
-    def _points(self, idx: Tensor, generator: torch.Generator) -> Tensor:
-        jitter = torch.rand(len(idx), 2, generator=generator, dtype=torch.float64)
-        ij = torch.stack([idx % self.width, idx // self.width], dim=1).to(torch.float64)
-        return self.origin + (ij + jitter) * self.pixel_size
-
     def __call__(self, step: int, generator: torch.Generator):
         n = len(self.keep)
-        parts, need = [], self.batch_size
-        while need:
-            if self.pos == len(self.order):
-                self.order, self.pos = torch.randperm(n, generator=generator), 0
-                self.epoch += 1
-            take = min(need, n - self.pos)
-            # with a cache, rows of jitter set e start at e * n
-            offset = ((self.epoch - 1) % (len(self.cache[0]) // n)) * n if self.cache is not None else 0
-            parts.append(self.order[self.pos : self.pos + take] + offset)
-            self.pos += take
-            need -= take
-        rows = torch.cat(parts)  # positions in keep (+ jitter-set offset)
+        sets = len(self.cache[0]) // n if self.cache is not None else 1
+        # with a cache, epoch e uses jitter set (e - 1) mod sets, whose rows start at that index times n
+        rows = torch.cat([order + ((epoch - 1) % sets) * n for order, epoch in self.epochs.take(self.batch_size,
+                                                                                               generator)])
         pixel = self.keep[rows % n]
         device = self.pixels.device
         target = self.pixels[pixel.to(device)]
         if self.cache is None:
-            return self._points(pixel, generator).to(device), target
+            return self.grid.points(pixel, generator).to(device), target
         xy, idx, w = self.cache
         rows_d = rows.to(idx.device)
         return xy[rows].to(device), target, (idx[rows_d], w[rows_d])
@@ -210,17 +244,10 @@ def image_sampler(image, domain, batch_size: int, *, device: str = "cpu", query=
     x0, y0, x1, y1 = (float(v) for v in domain)
     if not (x1 > x0 and y1 > y0):
         raise ValueError(f"domain {tuple(domain)} must have x1 > x0 and y1 > y0")
-    keep = np.arange(pixels.shape[0] * pixels.shape[1])
-    if exclude is not None:
-        exclude = np.asarray(exclude, dtype=bool)
-        if exclude.shape != pixels.shape[:2]:
-            raise ValueError(f"exclude must have the image's shape {pixels.shape[:2]}, got {exclude.shape}")
-        keep = keep[~exclude.ravel()]
-        if len(keep) == 0:
-            raise InputError("every pixel is excluded from sampling")
+    keep = _kept_pixels(pixels.shape[0], pixels.shape[1], exclude)
     generator = torch.Generator().manual_seed(seed)
     return _StratifiedPixels(torch.from_numpy(pixels).to(device), (x0, y0, x1, y1), batch_size, query, jitter_sets,
-                             generator, torch.from_numpy(keep))
+                             generator, keep)
 
 
 EDGE_SAMPLE_SPACING = 0.25
@@ -391,20 +418,10 @@ class _ShuffledPoints:
 
     def __init__(self, xy: Tensor, values: Tensor, batch_size: int, cache):
         self.xy, self.values, self.batch_size, self.cache = xy, values, batch_size, cache
-        self.order = torch.empty(0, dtype=torch.int64)
-        self.pos = 0
+        self.epochs = _Epochs(len(xy))
 
     def __call__(self, step: int, generator: torch.Generator):
-        n = len(self.xy)
-        parts, need = [], self.batch_size
-        while need:
-            if self.pos == len(self.order):
-                self.order, self.pos = torch.randperm(n, generator=generator), 0
-            take = min(need, n - self.pos)
-            parts.append(self.order[self.pos : self.pos + take])
-            self.pos += take
-            need -= take
-        rows = torch.cat(parts).to(self.xy.device)
+        rows = torch.cat([order for order, _ in self.epochs.take(self.batch_size, generator)]).to(self.xy.device)
         if self.cache is None:
             return self.xy[rows], self.values[rows]
         idx, w = self.cache
@@ -509,31 +526,17 @@ class _StratifiedFrames:
         self.values = frames.reshape(-1, frames.shape[-1])  # row s · H · W + pixel
         self.times = times
         self.keep = keep  # (n,) flat pixel indices sampled in every frame
-        self.n_frames, self.height, self.width = frames.shape[:3]
-        x0, y0, x1, y1 = domain
-        self.origin = torch.tensor([x0, y0], dtype=torch.float64)
-        self.pixel_size = torch.tensor([(x1 - x0) / self.width, (y1 - y0) / self.height], dtype=torch.float64)
+        self.pixels_per_frame = frames.shape[1] * frames.shape[2]
+        self.grid = _PixelGrid(domain, frames.shape[2], frames.shape[1])
         self.batch_size = batch_size
-        self.order = torch.empty(0, dtype=torch.int64)
-        self.pos = 0
+        self.epochs = _Epochs(frames.shape[0] * len(keep))
 
     def __call__(self, step: int, generator: torch.Generator):
-        n = self.n_frames * len(self.keep)
-        parts, need = [], self.batch_size
-        while need:
-            if self.pos == len(self.order):
-                self.order, self.pos = torch.randperm(n, generator=generator), 0
-            take = min(need, n - self.pos)
-            parts.append(self.order[self.pos : self.pos + take])
-            self.pos += take
-            need -= take
-        rows = torch.cat(parts)
+        rows = torch.cat([order for order, _ in self.epochs.take(self.batch_size, generator)])
         frame, pixel = rows // len(self.keep), self.keep[rows % len(self.keep)]
-        jitter = torch.rand(len(rows), 2, generator=generator, dtype=torch.float64)
-        ij = torch.stack([pixel % self.width, pixel // self.width], dim=1).to(torch.float64)
-        xy = self.origin + (ij + jitter) * self.pixel_size
+        xy = self.grid.points(pixel, generator)
         device = self.values.device
-        target = self.values[(frame * self.height * self.width + pixel).to(device)]
+        target = self.values[(frame * self.pixels_per_frame + pixel).to(device)]
         return xy.to(device), target, {"t": self.times[frame.to(device)]}
 
 
@@ -555,14 +558,10 @@ def frame_sampler(frames, times, domain, batch_size: int, *, device: str = "cpu"
     frames = np.ascontiguousarray(frames, dtype=np.float32)
     if not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
-    keep = np.arange(frames.shape[1] * frames.shape[2])
-    if exclude is not None:
-        keep = keep[~np.asarray(exclude, dtype=bool).ravel()]
-        if len(keep) == 0:
-            raise InputError("every pixel is excluded from sampling")
+    keep = _kept_pixels(frames.shape[1], frames.shape[2], exclude)
     return _StratifiedFrames(torch.from_numpy(frames).to(device),
                              torch.as_tensor(np.asarray(times, dtype=np.float64)).to(device),
-                             tuple(float(v) for v in domain), batch_size, torch.from_numpy(keep))
+                             tuple(float(v) for v in domain), batch_size, keep)
 
 
 def fit_frames(
