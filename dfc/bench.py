@@ -30,6 +30,7 @@ import torch
 from torch import nn
 
 from .errors import InputError
+from .render import values_at
 
 __all__ = ["METHODS", "ZOOMS", "BenchResult", "BenchSettings", "contact_sheet", "markdown_table", "run_bench",
            "run_scene", "throughput", "window_points", "write_outputs", "zoom_window"]
@@ -114,14 +115,6 @@ def window_points(window, width: int, height: int, spp: int) -> np.ndarray:
     X = np.broadcast_to(xs[None], (height, width, spp))
     Y = np.broadcast_to(ys[:, None], (height, width, spp))
     return np.stack([X.ravel(), Y.ravel()], axis=1)
-
-
-def _evaluate(model: nn.Module, xy: np.ndarray, device: str) -> np.ndarray:
-    """Model values (N, C) float64 at points (N, 2), in blocks."""
-    with torch.no_grad():
-        out = [model(torch.from_numpy(xy[i:i + EVAL_BLOCK]).to(device)).double().cpu().numpy()
-               for i in range(0, len(xy), EVAL_BLOCK)]
-    return np.concatenate(out)
 
 
 def _pixel_mean(values: np.ndarray, width: int, height: int, spp: int) -> np.ndarray:
@@ -343,7 +336,8 @@ def _measure(models, window, domain, pixels, reference, settings: BenchSettings,
     else:
         width, height = window_shape(window, settings.render)
     xy = window_points(window, width, height, settings.spp)
-    renders = {m: _pixel_mean(_evaluate(model, xy, settings.device), width, height, settings.spp)
+    renders = {m: _pixel_mean(values_at(model, xy, device=settings.device, block=EVAL_BLOCK), width, height,
+                              settings.spp)
                for m, model in models.items()}
     if reference is not None:
         renders["reference"] = _pixel_mean(np.asarray(reference(xy), dtype=np.float64), width, height, settings.spp)

@@ -19,6 +19,7 @@ from . import __version__
 from .curves import Curves, split_pieces
 from .errors import InputError, MeshError, TriangleBudgetError
 from .mesh import Mesh
+from .render import values_at
 from .triangulate import DEFAULT_TRIANGLES, triangulate
 
 if TYPE_CHECKING:
@@ -342,21 +343,11 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     xy = np.asarray(samples.xy, dtype=np.float64)
 
     def truth(m):
-        with torch.no_grad():
-            out = torch.cat([m(torch.from_numpy(xy[i:i + QUERY_BLOCK]).to(settings.device))
-                             for i in range(0, len(xy), QUERY_BLOCK)])
-        return values, out.cpu().numpy()
+        return values, values_at(m, xy, device=settings.device, block=QUERY_BLOCK)
 
     data_range = max(float(values.max() - values.min()), 1e-12)
     info = _encoder_info(settings, curves.source, {"input": f"samples {len(xy)}", "samples": len(xy)})
     return _finish(model, settings, info, seconds, len(xy), truth, data_range)
-
-
-def _at_points(m, xy: np.ndarray, device: str) -> np.ndarray:
-    """Model values (N, C) float32 at points xy (N, 2), evaluated in blocks."""
-    with torch.no_grad():
-        out = [m(torch.from_numpy(xy[i:i + QUERY_BLOCK]).to(device)) for i in range(0, len(xy), QUERY_BLOCK)]
-    return torch.cat(out).cpu().numpy()
 
 
 def _physical(settings: EncodeSettings) -> tuple[EncodeSettings, dict]:
@@ -394,7 +385,8 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
                                                             f"{len(solution.triangles)} triangles",
                                                    "nodes": len(nodal), "fem_sampling": sampling})
     return _finish(model, settings, info, seconds, len(nodal),
-                   lambda m: (nodal, _at_points(m, node_xy, settings.device)), data_range)
+                   lambda m: (nodal, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)),
+                   data_range)
 
 
 def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,

@@ -63,6 +63,15 @@ def row_blocks(
             yield r0, block.cpu().numpy()
 
 
+def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_POINTS) -> np.ndarray:
+    """Model values (N, C) float64 at scattered points xy (N, 2) float64 in domain units, ``block`` points per call
+    on ``device`` (memory stays bounded)."""
+    with torch.no_grad():
+        out = [model(torch.from_numpy(xy[i:i + block]).to(device)).double().cpu().numpy()
+               for i in range(0, len(xy), block)]
+    return np.concatenate(out)
+
+
 def render(model, width: int, height: int, window=None, *, spp: int = 1, t=None) -> np.ndarray:
     """Render into memory: (height, width, C) float32. For huge outputs use ``row_blocks``."""
     blocks = [b for _, b in row_blocks(model, width, height, window, spp=spp, t=t)]

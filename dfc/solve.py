@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -321,8 +321,7 @@ def solve_scene(curves, settings: SolveSettings | None = None, *, problem: Solve
     """
     import time
 
-    from . import __version__
-    from .codec import to_contents
+    from .codec import _encoder_info, to_contents
     from .container import encode_dfield
     from .samples import default_channels
 
@@ -340,8 +339,7 @@ def solve_scene(curves, settings: SolveSettings | None = None, *, problem: Solve
                     boundary_weight=settings.boundary_weight, feature_bits=settings.feature_bits, seed=settings.seed,
                     callback=callback)
     seconds["solve_s"] = time.perf_counter() - clock
-    info = {"software": f"dfc {__version__}", "source": curves.source, "input": "physics-informed solve",
-            **asdict(settings)}
+    info = _encoder_info(settings, curves.source, {"input": "physics-informed solve"})
     blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits)
     report = SolveReport(total_bytes=len(blob), chunk_bytes=sizes, n_vertices=mesh.n_vertices,
                          n_triangles=mesh.n_triangles, n_features=model.field.n_features,

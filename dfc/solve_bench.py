@@ -72,20 +72,16 @@ class SolveBenchSettings:
             raise InputError(f"the reference grid needs at least 8 pixels on its long side, got {self.size}")
 
 
-def _evaluate(model, xy: np.ndarray, device: str) -> np.ndarray:
-    with torch.no_grad():
-        return np.concatenate([model(torch.from_numpy(xy[i:i + EVAL_BLOCK]).to(device)).double().cpu().numpy()
-                               for i in range(0, len(xy), EVAL_BLOCK)])
-
-
 def run_solve_bench(curves, settings: SolveBenchSettings, *, name: str = "",
                     progress: Callable[[str], None] | None = None) -> dict:
     """Solve ``curves`` (with side values) with every method; return the JSON-able ``results`` plus
     ``"renders"`` ({method or "reference": (H, W, C) float32}, not JSON) and ``"blob"`` (dfc's file)."""
     from .baselines import BASELINES
+    from .bench import window_points
     from .codec import loads
     from .metrics import psnr
     from .reference import solve_reference
+    from .render import values_at
     from .samples import default_channels
     from .solve import BOUNDARY_WEIGHT, SolveSettings, prepare, solve, solve_scene
     from .wos import grid_size
@@ -103,10 +99,7 @@ def run_solve_bench(curves, settings: SolveBenchSettings, *, name: str = "",
     clock = time.perf_counter()
     reference = solve_reference(problem.scene, max(2, width), max(2, height)).values
     reference_s = time.perf_counter() - clock
-    x0, y0, x1, y1 = problem.domain
-    X, Y = np.meshgrid(x0 + (np.arange(width) + 0.5) * (x1 - x0) / width,
-                       y0 + (np.arange(height) + 0.5) * (y1 - y0) / height)
-    xy = np.stack([X.ravel(), Y.ravel()], axis=1)
+    xy = window_points(problem.domain, width, height, 1)  # the reference's pixel centres
     data_range = problem.data_range
     channels = default_channels(problem.n_channels)
     renders = {"reference": reference.astype(np.float32)}
@@ -141,7 +134,7 @@ def run_solve_bench(curves, settings: SolveBenchSettings, *, name: str = "",
             size = model.stored_bytes()
             details = {**model.describe(), "energy": history["energy"][-1], "boundary": history["boundary"][-1]}
         seconds = time.perf_counter() - clock
-        out = _evaluate(model, xy, settings.device).reshape(height, width, -1).astype(np.float32)
+        out = values_at(model, xy, device=settings.device, block=EVAL_BLOCK).reshape(height, width, -1).astype(np.float32)
         renders[method] = out
         record[method] = {"bytes": int(size), "psnr": psnr(reference, out, data_range=data_range),
                           "solve_s": seconds, "lr": LEARNING_RATES[method], **details}
