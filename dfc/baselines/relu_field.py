@@ -119,7 +119,11 @@ class ReluField(Baseline):
             up = nnf.interpolate(self.grid, size=self._stage_shape(self.stage), mode="bilinear", align_corners=True)
         self.grid = nn.Parameter(up)
 
+    def bilinear(self, xy: Tensor) -> Tensor:
+        """The grid bilinearly interpolated at xy (N, 2) domain units: (N, C) float32, in units of ``value_scale``."""
+        return nnf.grid_sample(self.grid, grid_coords(xy, self.domain), mode="bilinear", padding_mode="border",
+                               align_corners=True)[0, :, 0].T
+
     def forward(self, xy: Tensor) -> Tensor:
-        v = nnf.grid_sample(self.grid, grid_coords(xy, self.domain), mode="bilinear", padding_mode="border",
-                            align_corners=True)[0, :, 0].T * self.value_scale  # (N, C)
+        v = self.bilinear(xy) * self.value_scale
         return v.clamp_min(self.lo) if self.hi is None else v.clamp(self.lo, self.hi)

@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-import torch.nn.functional as nnf
 from torch import Tensor
 
-from .relu_field import COARSE_TO_FINE, ReluField, grid_coords
+from .relu_field import COARSE_TO_FINE, ReluField
 
 __all__ = ["TanhField"]
 
@@ -61,6 +60,4 @@ class TanhField(ReluField):
         return {"class": type(self).__name__, "grid": [self.shape[1], self.shape[0]], "value_scale": self.value_scale}
 
     def forward(self, xy: Tensor) -> Tensor:
-        v = nnf.grid_sample(self.grid, grid_coords(xy, self.domain), mode="bilinear", padding_mode="border",
-                            align_corners=True)[0, :, 0].T  # (N, C)
-        return torch.tanh(v) * self.value_scale
+        return torch.tanh(self.bilinear(xy)) * self.value_scale
