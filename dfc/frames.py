@@ -60,6 +60,8 @@ def check_frames(seq: FrameSequence, source: str = "frames") -> FrameSequence:
 
 def npz_kind(path: str | Path) -> str:
     """"frames" or "samples": which ``.npz`` layout a file holds, by its keys (``InputError`` when neither)."""
+    if not zipfile.is_zipfile(path):
+        raise InputError(f"{path}: not an npz archive (no zip structure)")
     try:
         with np.load(path, allow_pickle=False) as z:
             keys = set(z.files)
@@ -74,23 +76,11 @@ def npz_kind(path: str | Path) -> str:
 
 
 def read_frames(path: str | Path) -> FrameSequence:
-    """Read and validate a frames ``.npz`` (no pickles; no keys besides ``FRAME_KEYS``)."""
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            extra = sorted(set(z.files) - set(FRAME_KEYS))
-            if extra:
-                raise InputError(f"{path}: unknown keys {', '.join(extra)} (allowed: {', '.join(FRAME_KEYS)})")
-            arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
-        if isinstance(e, InputError):
-            raise
-        raise InputError(f"{path}: not a readable frames archive ({e})") from None
-    for key in ("frames", "times"):
-        if key not in arrays:
-            raise InputError(f"{path}: missing the array {key!r}")
-    channels = arrays.get("channels")
-    return check_frames(FrameSequence(arrays["frames"], arrays["times"],
-                                      None if channels is None else channels.tolist()), str(path))
+    """Read and validate a frames ``.npz`` (``dfc.samples.read_npz``: no pickles; no keys besides ``FRAME_KEYS``)."""
+    from .samples import read_channels, read_npz
+
+    arrays = read_npz(path, FRAME_KEYS, ("frames", "times"), "a frames file")
+    return check_frames(FrameSequence(arrays["frames"], arrays["times"], read_channels(arrays, path)), str(path))
 
 
 def frames_from_images(paths: list[str], times, channels: list[str] | None = None) -> FrameSequence:

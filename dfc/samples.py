@@ -16,7 +16,8 @@ import numpy as np
 from .atomic import atomic_path
 from .errors import InputError
 
-__all__ = ["SampleSet", "check_samples", "default_channels", "read_samples", "write_samples", "KEYS"]
+__all__ = ["SampleSet", "check_samples", "default_channels", "read_channels", "read_npz", "read_samples",
+           "write_samples", "KEYS"]
 
 KEYS = ("xy", "values", "domain", "channels")
 """The arrays a samples file may hold; ``xy`` and ``values`` are required."""
@@ -100,12 +101,12 @@ def check_samples(samples: SampleSet, source: str = "samples") -> SampleSet:
                      domain, channels)
 
 
-def read_samples(path: str | Path) -> SampleSet:
-    """Read a samples ``.npz`` file (``spec/samples.md``).
+def read_npz(path: str | Path, keys: tuple[str, ...], required: tuple[str, ...], kind: str) -> dict[str, np.ndarray]:
+    """The arrays of an ``.npz`` file holding only ``keys``, among them every one of ``required``.
 
-    Returns a validated ``SampleSet``. Raises ``InputError`` naming the file and the problem when it is not a
-    readable npz archive (or a corrupt one), holds pickled objects (never unpickled), lacks ``xy`` or
-    ``values``, has unknown keys, or fails ``check_samples``.
+    kind : what the file is, for the messages ("a samples file"). Raises ``InputError`` naming the file and the
+    problem when it is missing, a directory, not a readable npz archive (or a corrupt one), holds pickled objects
+    (never unpickled), has unknown arrays or lacks a required one.
     """
     path = Path(path)
     arrays = {}
@@ -131,17 +132,32 @@ def read_samples(path: str | Path) -> SampleSet:
         raise InputError(f"{path}: cannot read: permission denied") from None
     except (ValueError, OSError, EOFError, zipfile.BadZipFile, KeyError) as e:  # truncated or corrupt members
         raise InputError(f"{path}: corrupt npz archive ({_reason(e)})") from None
-    unknown = sorted(set(arrays) - set(KEYS))
+    unknown = sorted(set(arrays) - set(keys))
     if unknown:
-        raise InputError(f"{path}: unknown arrays {unknown}; a samples file holds {list(KEYS)}")
-    missing = [k for k in ("xy", "values") if k not in arrays]
+        raise InputError(f"{path}: unknown arrays {unknown}; {kind} holds {list(keys)}")
+    missing = [k for k in required if k not in arrays]
     if missing:
         raise InputError(f"{path}: missing required array{'s' if len(missing) > 1 else ''} {missing}")
+    return arrays
+
+
+def read_channels(arrays: dict[str, np.ndarray], path) -> list[str] | None:
+    """The optional ``channels`` array of a file read by ``read_npz`` as names (``InputError`` unless strings)."""
     channels = arrays.get("channels")
     if channels is not None and not _is_strings(channels):
         raise InputError(f"{path}: channels must be an array of strings, got dtype {channels.dtype}")
+    return None if channels is None else _names(channels)
+
+
+def read_samples(path: str | Path) -> SampleSet:
+    """Read a samples ``.npz`` file (``spec/samples.md``).
+
+    Returns a validated ``SampleSet``. Raises ``InputError`` naming the file and the problem when ``read_npz``
+    refuses it or it fails ``check_samples``.
+    """
+    arrays = read_npz(path, KEYS, ("xy", "values"), "a samples file")
     return check_samples(SampleSet(arrays["xy"], arrays["values"], arrays.get("domain"),
-                                   None if channels is None else _names(channels)), str(path))
+                                   read_channels(arrays, path)), str(path))
 
 
 def write_samples(path: str | Path, samples: SampleSet) -> None:
