@@ -233,11 +233,12 @@ def _encoder_info(settings: EncodeSettings, source: str, extra: dict) -> dict:
 
 
 def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, channels: list[str], callback,
-                  **fit_kw):
-    """Build the decoder-view mesh, then fit ``fit_fn`` (``fit_image``, ``fit_samples`` or ``fit_frames``) to
-    ``signal`` on it; ``fit_kw`` go to ``fit_fn``. Returns (model, seconds per stage)."""
+                  mesh: Mesh | None = None, **fit_kw):
+    """Build the decoder-view mesh (unless ``mesh`` is that mesh already), then fit ``fit_fn`` (``fit_image``,
+    ``fit_samples`` or ``fit_frames``) to ``signal`` on it; ``fit_kw`` go to ``fit_fn``. Returns (model, seconds
+    per stage)."""
     clock = time.perf_counter()
-    mesh = _size_mesh(curves, settings, channels)
+    mesh = mesh if mesh is not None else _size_mesh(curves, settings, channels)
     seconds = {"mesh_s": time.perf_counter() - clock}
     clock = time.perf_counter()
     model = fit_fn(signal, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
@@ -302,17 +303,17 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     return _finish(model, settings, info, seconds, w * h, lambda m: (pixels, render(m, w, h)), max(data_range, 1e-12))
 
 
-def _sample_mesh_size(curves: Curves, settings: EncodeSettings, n_samples: int) -> EncodeSettings:
-    """``settings`` with ``max_triangles`` following the sample count (``NOISY_SAMPLES_PER_TRIANGLE``) when no
-    mesh-size option is set."""
+def _sample_mesh_size(curves: Curves, settings: EncodeSettings, n_samples: int) -> tuple[EncodeSettings, Mesh | None]:
+    """``settings`` with ``max_triangles`` following the sample count (``NOISY_SAMPLES_PER_TRIANGLE``) and the
+    decoder-view mesh built with them, when no mesh-size option is set; else ``settings`` unchanged and None."""
     if any(v is not None for v in (settings.max_triangles, settings.max_area, settings.edge_length,
                                    settings.target_bytes)):
-        return settings
+        return settings, None
     cap = min(DEFAULT_TRIANGLES, max(2, n_samples // NOISY_SAMPLES_PER_TRIANGLE))
     while True:  # the first refusal counts vertices only; the curves' apexes may need a few more triangles
+        sized = replace(settings, max_triangles=cap)
         try:
-            triangulate(curves, max_triangles=cap)
-            return replace(settings, max_triangles=cap)
+            return sized, build_mesh(curves, sized)
         except TriangleBudgetError as e:
             cap = max(e.needed, cap + 1)
 
@@ -338,8 +339,11 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     channels = samples.channels or default_channels(values.shape[1])
     x0, y0, x1, y1 = curves.domain
     curves = split_pieces(curves, SAMPLE_PIECE_REL * max(x1 - x0, y1 - y0))
-    settings = _sample_mesh_size(curves, settings, len(values))
-    model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, channels, callback)
+    clock = time.perf_counter()
+    settings, mesh = _sample_mesh_size(curves, settings, len(values))
+    sizing_s = time.perf_counter() - clock
+    model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, channels, callback, mesh=mesh)
+    seconds["mesh_s"] += sizing_s
     xy = np.asarray(samples.xy, dtype=np.float64)
 
     def truth(m):

@@ -128,13 +128,15 @@ def test_sample_sets_size_their_mesh_by_the_sample_count(scene):
 
     curves = scene.curves
     floor = triangulate(curves, max_triangles=None).n_triangles  # at least what the curves force
-    many = _sample_mesh_size(curves, EncodeSettings(), 10**9)
+    many, _ = _sample_mesh_size(curves, EncodeSettings(), 10**9)
     assert many.max_triangles == 2000  # capped at the default mesh
-    few = _sample_mesh_size(curves, EncodeSettings(), 10)
+    few, few_mesh = _sample_mesh_size(curves, EncodeSettings(), 10)
     assert 2 < few.max_triangles <= floor
     assert triangulate(curves, max_triangles=few.max_triangles).n_triangles <= few.max_triangles
+    assert few_mesh.n_triangles <= few.max_triangles  # the mesh the fit runs on, built once
     n = 300 * NOISY_SAMPLES_PER_TRIANGLE
-    middle = _sample_mesh_size(curves, EncodeSettings(), n)
+    middle, _ = _sample_mesh_size(curves, EncodeSettings(), n)
     assert middle.max_triangles == max(300, few.max_triangles)
     given = EncodeSettings(max_area=5.0)
-    assert _sample_mesh_size(curves, given, 10) is given  # an explicit mesh size wins
+    kept, no_mesh = _sample_mesh_size(curves, given, 10)
+    assert kept is given and no_mesh is None  # an explicit mesh size wins
