@@ -12,8 +12,9 @@ pixel centre), the MSE of
 
 and prints their ratio, the variance-reduction factor (paper: 19.21× at 11 spp).
 
-The field is built the way ``dfc encode SAMPLES.npz`` builds it (``dfc.codec.sample_curves``): curved
-pieces are cut into parts at most 1/64 of the domain's long side (``--piece-length`` overrides, in pixels).
+Curved pieces are cut as ``dfc encode SAMPLES.npz`` cuts them (``dfc.curves.split_pieces``), into parts at most
+``dfc.codec.SAMPLE_PIECE_REL`` = 1/64 of the domain's long side (``--piece-length`` overrides, in pixels); the
+mesh size is ``--max-triangles``.
 A curved piece lies in one triangle whose sliver between chord and curve carries a single curve feature, so
 a long piece leaves a wide band along the curve with little freedom; on the shipped pepper at 128², cutting
 at 4 px roughly halves the error within 2 px of the curves.
