@@ -9,27 +9,27 @@ __version__ = "0.1.0"
 
 import importlib
 
-from .curves import Curves, SideValues, read_curves
 from .errors import CurveError, DfcError, FormatError, InputError, MeshError
-from .mesh import Mesh
-from .triangulate import triangulate
+from .geometry.curves import Curves, SideValues, read_curves
+from .geometry.mesh import Mesh
+from .geometry.triangulate import triangulate
 
 _LAZY = {
     "FeatureField": "dfc.field.feature_field",
-    "FieldModel": "dfc.model",
-    "fit_image": "dfc.fit",
-    "fit_samples": "dfc.fit",
-    "fit_frames": "dfc.fit",
+    "FieldModel": "dfc.field.model",
+    "fit_image": "dfc.train.fit",
+    "fit_samples": "dfc.train.fit",
+    "fit_frames": "dfc.train.fit",
     "EncodeSettings": "dfc.codec",
     "encode_image": "dfc.codec",
     "encode_samples": "dfc.codec",
     "encode_fem": "dfc.codec",
     "encode_frames": "dfc.codec",
-    "read_fem": "dfc.fem",
-    "read_frames": "dfc.frames",
+    "read_fem": "dfc.io.fem",
+    "read_frames": "dfc.io.frames",
     "load": "dfc.codec",
     "loads": "dfc.codec",
-    "read_image": "dfc.imageio",
+    "read_image": "dfc.io.image",
     "render": "dfc.render",
 }
 

@@ -16,14 +16,14 @@ import numpy as np
 import torch
 
 from . import __version__
-from .curves import Curves, split_pieces
 from .errors import InputError, MeshError, TriangleBudgetError
-from .mesh import Mesh
+from .geometry.curves import Curves, split_pieces
+from .geometry.mesh import Mesh
+from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 from .render import values_at
-from .triangulate import DEFAULT_TRIANGLES, triangulate
 
 if TYPE_CHECKING:
-    from .container import DfieldContents
+    from .io.container import DfieldContents
 
 __all__ = ["EncodeSettings", "EncodeReport", "build_mesh", "check_domain", "encode_fem", "encode_frames",
            "encode_image", "encode_samples", "fit_curves_to_domain", "from_contents", "load", "loads", "to_contents"]
@@ -34,7 +34,7 @@ QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
 SAMPLE_PIECE_REL = 1.0 / 64.0
 """Sample sets: curved pieces are cut to at most this fraction of the domain's longer side before meshing
-(``dfc.curves.split_pieces``). A curved piece's sliver carries one curve feature, so long pieces leave a
+(``dfc.geometry.curves.split_pieces``). A curved piece's sliver carries one curve feature, so long pieces leave a
 wide band along the curve with little freedom; cutting them halves the walk-on-spheres fit's error near the
 curves (``dfc benchmark wos``)."""
 NOISY_SAMPLES_PER_TRIANGLE = 1000
@@ -103,7 +103,7 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
 def build_mesh(curves: Curves, settings: EncodeSettings, *, stats: dict | None = None) -> Mesh:
     """Triangulate ``curves`` with the settings' size knobs and return the mesh as the decoder will see it
     (Draco-quantised with ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on."""
-    from .meshcodec import roundtrip_mesh
+    from .io.meshcodec import roundtrip_mesh
     mesh = triangulate(curves, max_area=settings.max_area, edge_length=settings.edge_length,
                        max_triangles=settings.max_triangles, stats=stats)
     return roundtrip_mesh(mesh, settings.mesh_bits)
@@ -118,7 +118,7 @@ def to_contents(model, encoder: dict | None = None) -> DfieldContents:
 
     encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
     """
-    from .container import DfieldContents
+    from .io.container import DfieldContents
 
     config = model.config()
     header = {
@@ -142,7 +142,7 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu"):
     """Rebuild the ``FieldModel`` a file describes. Raises ``FormatError`` when the header's model does
     not match the stored features or weights."""
     from .errors import FormatError
-    from .model import FieldModel
+    from .field.model import FieldModel
 
     h = contents.header
     arch = h["model"]
@@ -175,14 +175,14 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu"):
 
 def loads(blob: bytes, *, device: str = "cpu"):
     """``FieldModel`` from the bytes of a ``.dfield`` file (fully checked; ``FormatError`` if damaged)."""
-    from .container import decode_dfield
+    from .io.container import decode_dfield
 
     return from_contents(decode_dfield(blob), device=device)
 
 
 def load(path: str | Path, *, device: str = "cpu"):
     """``FieldModel`` from a ``.dfield`` file: ``model(xy)``, ``model.features(xy)``, ``model.render(w, h)``."""
-    from .container import read_dfield
+    from .io.container import read_dfield
 
     return from_contents(read_dfield(path), device=device)
 
@@ -192,9 +192,9 @@ def _size_mesh(curves: Curves, settings: EncodeSettings, channels: list[str]) ->
     """The decoder-view mesh, sized to ``settings.target_bytes`` when given (else the explicit knobs)."""
     if settings.target_bytes is None:
         return build_mesh(curves, settings)
-    from .container import encode_dfield
     from .field.feature_field import FeatureField
-    from .model import FieldModel
+    from .field.model import FieldModel
+    from .io.container import encode_dfield
 
     def file_bytes(n_triangles: int) -> tuple[int, Mesh]:
         s = replace(settings, max_triangles=n_triangles, max_area=None, edge_length=None)
@@ -251,7 +251,7 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
             truth: Callable[[object], tuple[np.ndarray, np.ndarray]], data_range: float):
     """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth``."""
-    from .container import encode_dfield
+    from .io.container import encode_dfield
     from .metrics import psnr
 
     clock = time.perf_counter()
@@ -277,7 +277,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
 
     Parameters
     ----------
-    image : ``dfc.imageio.Image`` or (H, W, C) float array of linear values covering [0, W] × [0, H]
+    image : ``dfc.io.image.Image`` or (H, W, C) float array of linear values covering [0, W] × [0, H]
     curves : Curves over the same domain (or any domain with ``fit_curves=True``, scaled onto the image)
     settings : EncodeSettings (defaults when None)
     callback : ``callback(step, loss, batch_psnr)`` after each optimiser step
@@ -287,9 +287,9 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     (blob, report): the ``.dfield`` bytes and an ``EncodeReport`` whose ``psnr`` is of ``blob`` decoded and
     rendered at the input's pixel centres, against the input (data range 1 for LDR, the input's span for HDR).
     """
-    from .fit import _check_pixels, fit_image
+    from .io.samples import default_channels
     from .render import render
-    from .samples import default_channels
+    from .train.fit import _check_pixels, fit_image
 
     settings = settings or EncodeSettings()
     pixels = _check_pixels(image)
@@ -320,7 +320,7 @@ def _sample_mesh_size(curves: Curves, settings: EncodeSettings, n_samples: int) 
 
 def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = None, *,
                    callback: Callable[[int, float, float], None] | None = None):
-    """Encode a scattered sample set (``dfc.samples.SampleSet``) with its discontinuity curves.
+    """Encode a scattered sample set (``dfc.io.samples.SampleSet``) with its discontinuity curves.
 
     The samples' domain (when given) must equal the curves'. Curved pieces are cut to ``SAMPLE_PIECE_REL`` of
     the longer side, and without a mesh-size setting the mesh follows the sample count
@@ -328,8 +328,8 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     the sample positions against the sample values (data range: the values' span), and
     ``bits_per_pixel`` counts bits per sample.
     """
-    from .fit import fit_samples
-    from .samples import default_channels
+    from .io.samples import default_channels
+    from .train.fit import fit_samples
 
     settings = settings or EncodeSettings()
     domain = getattr(samples, "domain", None)
@@ -364,17 +364,17 @@ def _physical(settings: EncodeSettings) -> tuple[EncodeSettings, dict]:
 
 def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None, *, sampling: str = "linear",
                callback: Callable[[int, float, float], None] | None = None):
-    """Encode a FEM solution (``dfc.fem.FemSolution``) with its barrier curves.
+    """Encode a FEM solution (``dfc.io.fem.FemSolution``) with its barrier curves.
 
-    The domain is the curves' when it contains the mesh, else the mesh's bounding box (``dfc.fem.fem_curves``).
-    The fit sees the nodes and ``dfc.fem.SAMPLES_PER_TRIANGLE`` points per element valued by ``sampling`` ("linear" or
-    "nearest", ``dfc.fem.interpolate``: never across a barrier). ``report.psnr`` is of the decoded file at the
-    nodes (each read just inside its first element, ``dfc.fem.node_points``) against the nodal values, data range
+    The domain is the curves' when it contains the mesh, else the mesh's bounding box (``dfc.io.fem.fem_curves``).
+    The fit sees the nodes and ``dfc.io.fem.SAMPLES_PER_TRIANGLE`` points per element valued by ``sampling`` ("linear" or
+    "nearest", ``dfc.io.fem.interpolate``: never across a barrier). ``report.psnr`` is of the decoded file at the
+    nodes (each read just inside its first element, ``dfc.io.fem.node_points``) against the nodal values, data range
     the values' span over all channels; ``bits_per_pixel`` counts bits per node.
     """
-    from .fem import fem_curves, node_points, sample_fem
-    from .fit import fit_samples
-    from .samples import SampleSet
+    from .io.fem import fem_curves, node_points, sample_fem
+    from .io.samples import SampleSet
+    from .train.fit import fit_samples
 
     settings, fit_kw = _physical(settings or EncodeSettings())
     curves = fem_curves(solution, curves)
@@ -395,16 +395,16 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
 
 def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
                   callback: Callable[[int, float, float], None] | None = None):
-    """Encode a frame sequence (``dfc.frames.FrameSequence``, T frames of W × H covering [0, W] × [0, H]) with its
+    """Encode a frame sequence (``dfc.io.frames.FrameSequence``, T frames of W × H covering [0, W] × [0, H]) with its
     discontinuity curves into a time-sliced file: one feature slice per frame time, linear blending between them.
 
     ``report.psnr`` is of the decoded file rendered at every frame's pixel centres and time against the frames,
     data range 1 when every value lies in [0, 1], else the values' span; ``bits_per_pixel`` counts T · W · H pixels.
     """
-    from .fit import fit_frames
-    from .frames import check_frames
+    from .io.frames import check_frames
+    from .io.samples import default_channels
     from .render import render
-    from .samples import default_channels
+    from .train.fit import fit_frames
 
     settings = settings or EncodeSettings()
     sequence = check_frames(sequence)

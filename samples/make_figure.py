@@ -13,8 +13,8 @@ import torch.nn.functional as nnf
 from PIL import Image as PILImage
 
 from dfc.codec import EncodeSettings, encode_image, load
-from dfc.imageio import linear_to_srgb, read_image
-from dfc.readers import read_any
+from dfc.geometry.sources import read_any
+from dfc.io.image import linear_to_srgb, read_image
 
 HERE = Path(__file__).parent
 CENTRE, ZOOM, SIDE = (229.0, 60.5), 100.0, 384

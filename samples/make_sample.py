@@ -2,14 +2,14 @@
 
 Writes ``sample.exr`` (256 × 256, half-float RGB, each pixel the 4 × 4 box-filtered exact value) and
 ``sample.json`` (its curves: a closed chain of four cubics, a triangle of lines, a quadratic arch on
-the border and an open cubic stroke whose jump ends inside the image), from ``dfc.scenes.sample_scene``.
+the border and an open cubic stroke whose jump ends inside the image), from ``dfc.bench.scenes.sample_scene``.
 """
 
 from pathlib import Path
 
-from dfc.imageio import write_exr
-from dfc.readers.jsonfile import write_json
-from dfc.scenes import sample_scene
+from dfc.bench.scenes import sample_scene
+from dfc.geometry.sources.jsonfile import write_json
+from dfc.io.image import write_exr
 
 HERE = Path(__file__).parent
 

@@ -5,13 +5,13 @@ import numpy as np
 import pytest
 import torch
 
-from dfc.codec import (EncodeSettings, build_mesh, check_domain, encode_image, from_contents, loads, to_contents)
-from dfc.container import decode_dfield, encode_dfield
+from dfc.bench.scenes import sample_scene
+from dfc.codec import EncodeSettings, build_mesh, check_domain, encode_image, from_contents, loads, to_contents
 from dfc.errors import FormatError, InputError
 from dfc.field.feature_field import FeatureField
-from dfc.model import FieldModel
+from dfc.field.model import FieldModel
+from dfc.io.container import decode_dfield, encode_dfield
 from dfc.render import render
-from dfc.scenes import sample_scene
 
 
 @pytest.fixture(scope="module")
@@ -124,7 +124,7 @@ def test_nan_image_is_refused(scene):
 
 def test_sample_sets_size_their_mesh_by_the_sample_count(scene):
     from dfc.codec import NOISY_SAMPLES_PER_TRIANGLE, _sample_mesh_size
-    from dfc.triangulate import triangulate
+    from dfc.geometry.triangulate import triangulate
 
     curves = scene.curves
     floor = triangulate(curves, max_triangles=None).n_triangles  # at least what the curves force

@@ -8,18 +8,18 @@ import numpy as np
 import pytest
 import torch
 
+from dfc.bench.scenes import sample_scene
 from dfc.codec import from_contents, loads, to_contents
-from dfc.container import decode_dfield, encode_dfield
-from dfc.curves import Curves, elevate
 from dfc.field.feature_field import FeatureField
 from dfc.field.mlp import OneBlob
+from dfc.field.model import FieldModel
 from dfc.field.side import chord_frames, in_sliver
-from dfc.meshcodec import roundtrip_mesh
-from dfc.model import FieldModel
-from dfc.scenes import sample_scene
-from dfc.triangulate import triangulate
+from dfc.geometry.curves import Curves, elevate
+from dfc.geometry.triangulate import triangulate
+from dfc.io.container import decode_dfield, encode_dfield
+from dfc.io.meshcodec import roundtrip_mesh
 
-from reference_decoder import ReferenceField, read_chunks
+from .reference_decoder import ReferenceField, read_chunks
 
 GOLDEN = Path(__file__).parent / "golden" / "valid" / "tiny.dfield"
 ATOL = 1e-4

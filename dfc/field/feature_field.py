@@ -20,7 +20,7 @@ import torch.nn.functional as nnf
 from torch import nn
 
 from ..errors import InputError
-from ..mesh import Mesh
+from ..geometry.mesh import Mesh
 from .interp import Interpolator
 from .layout import build_layout
 from .locate import PointLocator

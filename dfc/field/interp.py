@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..mesh import Mesh
+from ..geometry.mesh import Mesh
 from .layout import Layout
 from .side import chord_frames, in_sliver
 

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import MeshError
-from ..mesh import Mesh
+from ..geometry.mesh import Mesh
 
 __all__ = ["Layout", "build_layout"]
 

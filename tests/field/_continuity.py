@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from dfc.field import FeatureField
-from dfc.mesh import Mesh
+from dfc.geometry.mesh import Mesh
 
 from ._meshes import bezier, bezier_normal
 

@@ -1,4 +1,4 @@
-"""Small hand-built curved meshes for the field tests (pythoncdt directly, no dfc.triangulate).
+"""Small hand-built curved meshes for the field tests (pythoncdt directly, no dfc.geometry.triangulate).
 
 Curved pieces are placed inside a triangle ``(a, b, c)``: a quadratic or cubic from ``a`` to ``b``
 inside the tangent triangle ``(a, X, b)`` with ``X`` inside ``(a, b, c)``, so the piece is a graph
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pythoncdt as cdt
 
-from dfc.mesh import Mesh
+from dfc.geometry.mesh import Mesh
 
 UNIT = (0.0, 0.0, 1.0, 1.0)
 

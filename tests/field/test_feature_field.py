@@ -6,9 +6,9 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dfc.curves import Curves
 from dfc.errors import InputError
 from dfc.field import FeatureField
+from dfc.geometry.curves import Curves
 
 from ._continuity import SMOOTH, check_all, evaluate, random_field
 from ._meshes import bezier, circle_mesh, mesh_edges, random_mesh, s_mesh
@@ -47,8 +47,8 @@ def _random_curves(seed: int) -> Curves:
 @settings(max_examples=15, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 def test_continuity_theorem_through_triangulate(seed):
-    """Random crossing lines, quadratics and cubics meshed by dfc.triangulate."""
-    from dfc.triangulate import triangulate
+    """Random crossing lines, quadratics and cubics meshed by dfc.geometry.triangulate."""
+    from dfc.geometry.triangulate import triangulate
 
     mesh = triangulate(_random_curves(seed), max_triangles=400)
     check_all(random_field(mesh, seed))

@@ -11,12 +11,11 @@ from pathlib import Path
 import numpy as np
 
 HERE = Path(__file__).parent
-sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE.parents[1]))
 
-from test_container import join, make_contents, split  # noqa: E402
-
-from dfc.container import decode_dfield, encode_dfield  # noqa: E402
-from dfc.meshcodec import compress  # noqa: E402
+from dfc.io.container import decode_dfield, encode_dfield  # noqa: E402
+from dfc.io.meshcodec import compress  # noqa: E402
+from tests.io.test_container import join, make_contents, split  # noqa: E402
 
 
 def main():

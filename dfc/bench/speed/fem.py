@@ -1,0 +1,133 @@
+"""``dfc benchmark fem SOLUTION --curves BARRIERS``: compressing a FEM solution without leaking across barriers.
+
+The paper's Fig. 14. ``SOLUTION`` is any triangle mesh with point data (``dfc encode``'s FEM input; e.g. the
+output of ``samples/make_helmholtz.py``). The benchmark encodes it with dfc (``dfc.codec.encode_fem``) and prints
+
+- the bytes of the solution file against the ``.dfield``, and the PSNR of the decoded file against the FEM nodal
+  values (``EncodeReport.psnr``);
+- the leakage check: at points ``--offset`` × the domain's longer side away from every barrier segment, on both
+  sides (the middle 90 % of each segment, away from its ends), the mean and max absolute error against the FEM
+  solution on that side, of dfc and of a hash grid stored in the same bytes (``HashGrid.for_budget``, trained on
+  the same samples for ``--hash-steps`` steps), next to the mean jump of the FEM solution across the barrier.
+
+A codec that leaks blends the two sides near the barrier: its error there approaches half the jump.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import click
+import numpy as np
+
+from ...io.atomic import write_bytes_atomic
+
+SIDE_POINTS = 200
+"""Points per barrier segment and side in the leakage check."""
+
+
+def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``offset`` to the left and to the right of segments (S, 2, 2), ``n`` per segment over the middle
+    90 % of its length: left (S·n, 2), right (S·n, 2) float64 (left as in ``spec/curves.md``: y down)."""
+    s = np.linspace(0.05, 0.95, n)
+    a, b = segments[:, 0], segments[:, 1]
+    d = b - a
+    normal = np.stack([d[:, 1], -d[:, 0]], axis=1) / np.linalg.norm(d, axis=1, keepdims=True)  # left normal
+    mid = (a[:, None] + s[None, :, None] * d[:, None]).reshape(-1, 2)
+    nrm = np.repeat(normal, n, axis=0)
+    return mid + offset * nrm, mid - offset * nrm
+
+
+@click.command()
+@click.argument("solution_path", metavar="SOLUTION", type=click.Path(exists=True, dir_okay=False))
+@click.option("--curves", "curves_path", required=True, type=click.Path(exists=True, dir_okay=False),
+              help="The barrier curves (JSON or SVG).")
+@click.option("--fields", help="Comma-separated point-data arrays [default: all].")
+@click.option("--fem-sampling", type=click.Choice(["linear", "nearest"]), default="linear", show_default=True)
+@click.option("--max-triangles", type=click.IntRange(min=2), default=8000, show_default=True,
+              help="dfc mesh size.")
+@click.option("--steps", type=click.IntRange(min=1), default=1000, show_default=True, help="dfc fit steps.")
+@click.option("--hash-steps", type=click.IntRange(min=1), default=300, show_default=True,
+              help="Hash-grid training steps (slow on a CPU).")
+@click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True)
+@click.option("--offset", type=click.FloatRange(min=0, min_open=True), default=1e-3, show_default=True,
+              help="Distance of the check points from the barrier, as a fraction of the domain's longer side.")
+@click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
+@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also keep the .dfield here.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
+def command(solution_path, curves_path, fields, fem_sampling, max_triangles, steps, hash_steps, batch_size, offset,
+            threads, seed, output, json_path):
+    """Bytes, PSNR and leakage across the barriers of dfc and an equal-size hash grid on a FEM solution."""
+    import torch
+
+    from ...codec import EncodeSettings, encode_fem, loads
+    from ...geometry.curves import read_curves
+    from ...io.fem import barrier_segments, evaluate_fem, fem_curves, node_points, read_fem, sample_fem
+    from ...metrics import psnr
+    from ...train.fit import point_sampler
+    from ..baselines import train
+    from ..baselines.hashgrid import HashGrid
+
+    if threads is not None:
+        torch.set_num_threads(threads)
+    solution = read_fem(solution_path, fields.split(",") if fields else None)
+    curves = fem_curves(solution, read_curves(curves_path))
+    in_bytes = Path(solution_path).stat().st_size
+    click.echo(f"{solution_path}: {in_bytes} bytes, {len(solution.points)} nodes, {len(solution.triangles)} "
+               f"triangles, channels {', '.join(solution.channels)}")
+    settings = EncodeSettings(max_triangles=max_triangles, steps=steps, batch_size=batch_size, seed=seed)
+    clock = time.perf_counter()
+    every = max(1, steps // 10)
+    blob, report = encode_fem(solution, curves, settings, sampling=fem_sampling, callback=lambda s, loss, p: (
+        click.echo(f"  dfc step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True) if (s + 1) % every == 0 else None))
+    dfc_s = time.perf_counter() - clock
+    if output:
+        write_bytes_atomic(output, blob)
+    model = loads(blob)
+    click.echo(f"dfc: {len(blob)} bytes ({in_bytes / len(blob):.1f}x smaller), PSNR {report.psnr:.2f} dB against the "
+               f"nodal values (data range {report.data_range:.4g}), {report.n_triangles} triangles, {dfc_s:.0f} s")
+
+    clock = time.perf_counter()
+    xy, values = sample_fem(solution, curves, mode=fem_sampling, seed=seed)
+    extent = max(curves.domain[2] - curves.domain[0], curves.domain[3] - curves.domain[1])
+    grid = HashGrid.for_budget(len(blob), curves.domain, solution.channels, seed=seed,
+                               finest_resolution=int(2 * np.sqrt(len(solution.points))))
+    grid.init_mean(torch.from_numpy(values.mean(axis=0)))
+    every = max(1, hash_steps // 10)
+    train(grid, point_sampler(xy, values, batch_size), hash_steps, seed=seed, callback=lambda s, loss, p: (
+        click.echo(f"  hash grid step {s + 1}/{hash_steps}, batch PSNR {p:.2f} dB", err=True)
+        if (s + 1) % every == 0 else None))
+    hash_s = time.perf_counter() - clock
+    nodes = np.unique(solution.triangles)
+    node_xy = torch.from_numpy(node_points(solution)[0])
+    with torch.no_grad():
+        grid_psnr = psnr(solution.values[nodes], grid(node_xy).numpy(), data_range=report.data_range)
+    click.echo(f"hash grid: {grid.stored_bytes()} bytes, PSNR {grid_psnr:.2f} dB against the nodal values, "
+               f"{hash_steps} steps, {hash_s:.0f} s")
+
+    left, right = side_points(barrier_segments(curves), offset * extent)
+    sides = (("left", left), ("right", right))
+    truth = {side: evaluate_fem(solution, curves, p, mode=fem_sampling) for side, p in sides}
+    jump = float(np.abs(truth["left"] - truth["right"]).mean())
+    leak: dict = {"offset": offset * extent, "points_per_side": len(left), "mean_jump": jump}
+    click.echo(f"leakage at {offset * extent:.3g} from the barrier ({len(left)} points per side), mean |jump| of the "
+               f"FEM solution across it {jump:.4g}; absolute error (mean / max):")
+    for name, m in (("dfc", model), ("hash grid", grid)):
+        row = {}
+        with torch.no_grad():
+            for side, p in sides:
+                err = np.abs(m(torch.from_numpy(p)).numpy() - truth[side])
+                row[side] = {"mean": float(err.mean()), "max": float(err.max())}
+        leak[name] = row
+        click.echo(f"  {name:<10} left {row['left']['mean']:.4g} / {row['left']['max']:.4g}   "
+                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}")
+    if json_path:
+        figures = {"solution": str(solution_path), "solution_bytes": in_bytes, "nodes": len(solution.points),
+                   "fem_triangles": len(solution.triangles), "dfield_bytes": len(blob), "ratio": in_bytes / len(blob),
+                   "dfc_psnr": report.psnr, "data_range": report.data_range, "dfc_triangles": report.n_triangles,
+                   "dfc_steps": steps, "dfc_s": dfc_s, "hash_bytes": grid.stored_bytes(), "hash_psnr": grid_psnr,
+                   "hash_steps": hash_steps, "hash_s": hash_s, "leakage": leak}
+        write_bytes_atomic(json_path, (json.dumps(figures, indent=2) + "\n").encode())

@@ -1,0 +1,23 @@
+"""``dfc benchmark NAME``: run one of the benchmarks in ``dfc.bench.speed``."""
+
+import importlib
+import pkgutil
+
+import click
+
+from ..bench import speed as benchmarks
+
+
+class _BenchGroup(click.Group):
+    def list_commands(self, ctx):
+        return sorted(m.name for m in pkgutil.iter_modules(benchmarks.__path__))
+
+    def get_command(self, ctx, name):
+        if name not in self.list_commands(ctx):
+            return None
+        return importlib.import_module(f"dfc.bench.speed.{name}").command
+
+
+@click.group(cls=_BenchGroup)
+def command():
+    """Measure speed and quality; prints the figures (see each benchmark's --help)."""

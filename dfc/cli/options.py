@@ -1,0 +1,90 @@
+"""Option types and helpers shared by the ``dfc`` commands: sizes, windows, points, progress bars."""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import click
+
+from ..io.image import EXR_EXTENSIONS, MAX_IMAGE_SIDE
+
+OUTPUT_EXTENSIONS = EXR_EXTENSIONS + (".png",)
+DEFAULT_SIDE = (256, 4096)
+"""Default render size: the long side is the domain's long side in its own units, clamped into this range."""
+
+
+class _Numbers(click.ParamType):
+    """``a,b,...`` → tuple of ``count`` finite floats (or ints with ``integer=True``, split on ``x`` for sizes)."""
+
+    def __init__(self, count: int, name: str, sep: str = ",", integer: bool = False):
+        self.count, self.name, self.sep, self.integer = count, name, sep, integer
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, tuple):
+            return value
+        parts = str(value).lower().split(self.sep)
+        try:
+            nums = tuple(int(p) if self.integer else float(p) for p in parts)
+        except ValueError:
+            nums = ()
+        if len(nums) != self.count or not all(math.isfinite(v) for v in nums):
+            self.fail(f"expected {self.name}, got {value!r}", param, ctx)
+        return nums
+
+
+SIZE = _Numbers(2, "WxH (e.g. 1024x768)", sep="x", integer=True)
+WINDOW = _Numbers(4, "x0,y0,x1,y1")
+POINT = _Numbers(2, "X,Y")
+
+
+def positive(ctx, param, value):
+    """click callback: None or a number > 0."""
+    if value is not None and not value > 0:
+        raise click.BadParameter(f"must be > 0, got {value}")
+    return value
+
+
+def check_size(size, param_hint="'--size'") -> tuple[int, int] | None:
+    if size is not None and not all(1 <= v <= MAX_IMAGE_SIDE for v in size):
+        raise click.BadParameter(f"width and height must be in 1..{MAX_IMAGE_SIDE}, got {size[0]}x{size[1]}",
+                                 param_hint=param_hint)
+    return size
+
+
+def check_output(path: str, extensions=OUTPUT_EXTENSIONS, param_hint="'-o' / '--output'") -> str:
+    if not path.lower().endswith(tuple(extensions)):
+        raise click.BadParameter(f"must end in {' or '.join(extensions)}, got {path!r}", param_hint=param_hint)
+    return path
+
+
+def default_size(window: tuple[float, float, float, float], domain) -> tuple[int, int]:
+    """Render size for ``window`` when none is given: the long side as for the whole domain (its long side in
+    domain units, clamped into ``DEFAULT_SIDE``), the short side by the window's aspect ratio."""
+    long_side = min(max(round(max(domain[2] - domain[0], domain[3] - domain[1])), DEFAULT_SIDE[0]), DEFAULT_SIDE[1])
+    w, h = window[2] - window[0], window[3] - window[1]
+    scale = long_side / max(w, h)
+    return max(1, round(w * scale)), max(1, round(h * scale))
+
+
+def check_device(device: str) -> str:
+    """Validate a torch device name; ``click.BadParameter`` when it is malformed or not available here."""
+    import torch
+
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, ValueError):
+        raise click.BadParameter(f"not a torch device: {device!r}", param_hint="'--device'") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise click.BadParameter(f"{device!r} requested but CUDA is not available", param_hint="'--device'")
+    if dev.type not in ("cpu", "cuda"):
+        raise click.BadParameter(f"unsupported device {device!r}: use cpu or cuda[:N]", param_hint="'--device'")
+    return str(dev)
+
+
+def progress_bar(total: int, label: str, quiet: bool):
+    """A tqdm bar on stderr, disabled with ``quiet``."""
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=label, unit="step", disable=quiet, file=sys.stderr, leave=False,
+                dynamic_ncols=True, mininterval=0.5)

@@ -1,0 +1,67 @@
+"""``dfc stats IN.dfield [--json]``: mesh, parameter and byte statistics of a file (no torch needed)."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+
+def file_stats(path) -> dict:
+    """The statistics ``dfc stats`` prints, as a JSON-able dict (the paper's Table 1 and more)."""
+    from ..io.container import read_dfield_info
+
+    info = read_dfield_info(path, with_mesh=True)
+    header, feat, m, mesh = info["header"], info["features"], info["mesh"], info["decoded_mesh"]
+    encoder = header.get("encoder", {})
+    pixels = encoder.get("pixels")
+    times = header["times"]
+    return {
+        "file_bytes": info["file_bytes"],
+        "container_version": ".".join(map(str, info["container_version"])),
+        "content_version": ".".join(map(str, info["content_version"])),
+        "domain": header["domain"],
+        "channels": header["channels"],
+        "value_transform": header["value_transform"],
+        "time_axis": None if times is None else {"slices": len(times), "first": times[0], "last": times[-1]},
+        "mesh": {"vertices": m["vertices"], "triangles": m["triangles"], "discontinuous_vertices": mesh.n_disc_vertices,
+                 "discontinuous_edges": m["disc_edges"], "curved_triangles": m["curves"],
+                 "encoding": m["encoding"], "bits": m["bits"]},
+        "parameters": {"features": feat["slices"] * feat["rows"] * feat["width"], "feature_rows": feat["rows"],
+                       "feature_dim": feat["width"], "feature_bits": feat["bits"], "mlp": info["mlp"]["parameters"]},
+        "model": header["model"],
+        "chunk_bytes": info["chunks"],
+        "bits_per_pixel": None if not pixels else 8.0 * info["file_bytes"] / pixels,
+        "encoder": encoder,
+    }
+
+
+@click.command()
+@click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the statistics as one JSON object.")
+def command(input_path, as_json):
+    """Print the mesh, parameter and byte statistics of IN: triangles, vertices, discontinuous vertices, curved
+    triangles, feature and MLP parameters, bytes per chunk, bits per pixel of the encoded input, versions."""
+    s = file_stats(input_path)
+    if as_json:
+        click.echo(json.dumps(s, indent=2))
+        return
+    m, p = s["mesh"], s["parameters"]
+    rows = [
+        ("file", f"{s['file_bytes']} bytes, container {s['container_version']}, content {s['content_version']}"),
+        ("domain", ", ".join(f"{v:g}" for v in s["domain"])),
+        ("channels", f"{', '.join(s['channels'])} ({s['value_transform']})"),
+        ("time axis", "none" if s["time_axis"] is None else
+         f"{s['time_axis']['slices']} slices, t = {s['time_axis']['first']:g} .. {s['time_axis']['last']:g}"),
+        ("vertices", m["vertices"]), ("triangles", m["triangles"]),
+        ("discontinuous vertices", m["discontinuous_vertices"]), ("discontinuous edges", m["discontinuous_edges"]),
+        ("curved triangles", m["curved_triangles"]),
+        ("mesh encoding", f"{m['encoding']}" + (f", {m['bits']} bits" if m["encoding"] == "draco" else "")),
+        ("feature parameters", f"{p['features']} ({p['feature_rows']} rows x {p['feature_dim']}, {p['feature_bits']} bits)"),
+        ("MLP parameters", p["mlp"]),
+        ("bits per pixel", "n/a" if s["bits_per_pixel"] is None else f"{s['bits_per_pixel']:.3f}"),
+    ]
+    rows += [(f"chunk {name}", f"{size} bytes") for name, size in s["chunk_bytes"].items()]
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
+        click.echo(f"{key:<{width}}  {value}")

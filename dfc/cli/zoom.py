@@ -1,0 +1,45 @@
+"""``dfc zoom IN.dfield --center X,Y --zoom Z -o OUT``: render the window of domain size / Z around a point."""
+
+from __future__ import annotations
+
+import click
+
+from .options import POINT, SIZE, check_device, check_output, check_size, default_size
+from .output import check_time, render_to_file
+
+
+def zoom_window(domain, center, zoom: float) -> tuple[float, float, float, float]:
+    """Window (x0, y0, x1, y1) of width and height domain size / ``zoom`` centred on ``center``."""
+    x0, y0, x1, y1 = domain
+    hw, hh = 0.5 * (x1 - x0) / zoom, 0.5 * (y1 - y0) / zoom
+    return center[0] - hw, center[1] - hh, center[0] + hw, center[1] + hh
+
+
+@click.command()
+@click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False))
+@click.option("--center", required=True, type=POINT, help="Centre X,Y of the window, in domain units.")
+@click.option("--zoom", "zoom", required=True, type=click.FloatRange(min=1e-6, max=1e9),
+              help="Magnification: the window is the domain's size divided by this (e.g. 100).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="Image to write: .exr or .png.")
+@click.option("--size", type=SIZE, help="Output size WxH [default: as dfc decode renders the whole domain].")
+@click.option("--spp", type=click.IntRange(1, 1024), default=1, show_default=True, help="Samples per output pixel.")
+@click.option("--float", "full_float", is_flag=True, help="Write 32-bit float EXR channels (default: half).")
+@click.option("--time", "t", type=float, help="Time to render, for a time-varying file.")
+@click.option("--device", default="cpu", show_default=True, help="torch device for rendering.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def command(input_path, center, zoom, output, size, spp, full_float, t, device, quiet):
+    """Render a zoom window of IN around --center: at --zoom 100 the window spans 1/100 of the domain in each
+    direction. The centre must lie inside the domain; the window may reach past its border (values there are those
+    at the nearest border point)."""
+    from ..codec import load
+
+    check_output(output)
+    check_size(size)
+    model = load(input_path, device=check_device(device))
+    domain = model.field.mesh.domain
+    if not (domain[0] <= center[0] <= domain[2] and domain[1] <= center[1] <= domain[3]):
+        raise click.BadParameter(f"{center} is outside the domain {tuple(domain)}", param_hint="'--center'")
+    window = zoom_window(domain, center, zoom)
+    size = size or default_size(window, domain)
+    render_to_file(model, output, size, window, spp=spp, half=not full_float, t=check_time(model, t), quiet=quiet)
+    click.echo(f"wrote {output}: {size[0]}x{size[1]}, {zoom:g}x zoom, window {tuple(round(v, 6) for v in window)}")

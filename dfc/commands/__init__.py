@@ -1,1 +1,0 @@
-"""One module per ``dfc`` command, each exposing a click command named ``command``."""

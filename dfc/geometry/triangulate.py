@@ -1,0 +1,580 @@
+"""Curved constrained triangulation of the domain rectangle (DESIGN §4), vectorised.
+
+Every line piece becomes exactly one mesh edge and every curved piece lies inside one triangle whose
+two corners are the piece's endpoints. The recipe:
+
+1. clean-up (``dfc.geometry.cleanup.clean``): pieces meet only at shared endpoints and every curved piece is a
+   convex graph over its chord turning by at most 90°; line pieces longer than the nominal edge length
+   are cut into equal parts, so that long straight curves get vertices (and features) along them;
+2. *tangent triangles* (A, X, B), X where the end tangents meet, contain their pieces. Conflict loop:
+   halve (``dfc.geometry.bezier.split``) every piece whose tangent triangle leaves the domain, overlaps another
+   tangent triangle, crosses a line piece or contains a vertex, until none does;
+3. density: refine a chord-only constrained Delaunay triangulation (pythoncdt) to the size target and
+   keep its Steiner points that are off the constraints and outside every tangent triangle;
+4. final CDT of the domain border, line pieces and chords; only where the triangle beside a chord does
+   not contain its piece, the apex X and the edges AX, XB are added and the CDT is rebuilt.
+
+Size: ``max_area`` (or ``edge_length``) bounds triangle areas, ``grading`` lets the size grow away
+from the curves, ``max_triangles`` caps the count. With none of them the target is
+``DEFAULT_TRIANGLES`` triangles over the domain (plus what the curves force).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pythoncdt as cdt
+from scipy.spatial import cKDTree
+
+from ..errors import MeshError, TriangleBudgetError
+from . import bezier
+from .cleanup import clean
+from .curves import Curves, split_pieces
+from .mesh import Mesh, min_side_distance
+from .tolerances import tol
+
+__all__ = ["triangulate", "DEFAULT_TRIANGLES"]
+
+DEFAULT_TRIANGLES = 2000
+"""Triangle count the default density aims at over the whole domain (area bound = domain area / 1000)."""
+
+_MAX_ROUNDS = 60  # conflict-loop rounds; each halves the offending pieces
+_MAX_MIN_ANGLE = 34.0  # Ruppert-style refinement terminates for angle bounds below about 34°
+_STEINER_PER_AREA = 0.8  # Steiner vertices inserted per (domain area / area bound), measured on pythoncdt
+_EQUILATERAL = np.sqrt(3.0) / 4.0  # area of the equilateral triangle with unit edges
+
+
+def triangulate(
+    curves: Curves,
+    *,
+    max_area: float | None = None,
+    edge_length: float | None = None,
+    grading: float | None = None,
+    max_triangles: int | None = None,
+    min_angle: float = 20.0,
+    stats: dict | None = None,
+) -> Mesh:
+    """Curved constrained triangulation of ``curves.domain`` with every piece of ``curves`` built in.
+
+    Parameters
+    ----------
+    curves : Curves
+        The discontinuity curves; cleaned up first (``dfc.geometry.cleanup.clean``).
+    max_area : float, optional
+        Largest triangle area away from the curves' forced triangles, in domain units².
+    edge_length : float, optional
+        Target edge length in domain units (an area bound of the equilateral triangle); not with ``max_area``.
+    grading : float, optional
+        Growth rate ≥ 0 of the target edge length with the distance ``d`` to the curves:
+        ``h(d) = h0 + grading * d``; ``None`` or 0 keeps the size uniform.
+    max_triangles : int, optional
+        Cap on the triangle count: the density is lowered until it fits. Alone, it sets the density.
+    min_angle : float
+        Smallest-angle target in degrees for the Steiner points (0 to 34; 0 switches it off).
+    stats : dict, optional
+        Filled with timings in seconds (``clean_s``, ``conflict_s``, ``density_s``, ``cdt_s``) and counts
+        (``pieces_in``, ``pieces_clean``, ``pieces_final``, ``apexes``, ``steiner``, ``vertices``, ``triangles``).
+
+    Returns
+    -------
+    Mesh
+        Counter-clockwise triangles; ``validate()`` passes.
+
+    Raises
+    ------
+    MeshError
+        Bad size arguments, pieces that cannot be separated (e.g. two curves tangent at a shared endpoint on the
+        same side), or curves that alone need more than ``max_triangles`` triangles.
+    """
+    if not isinstance(curves, Curves):
+        raise MeshError(f"triangulate: expected Curves, got {type(curves).__name__}")
+    _check_sizes(max_area, edge_length, grading, max_triangles, min_angle)
+    stats = {} if stats is None else stats
+    clock = time.perf_counter()
+    pieces = clean(curves)
+    pieces = split_pieces(pieces, _line_length(pieces.domain, max_area, edge_length, max_triangles),
+                          lines=True, curved=False)
+    stats["clean_s"] = time.perf_counter() - clock
+    stats["pieces_in"], stats["pieces_clean"] = len(curves), len(pieces)
+
+    clock = time.perf_counter()
+    domain, diag = pieces.domain, pieces.diagonal
+    eps = tol.touch_rel * diag
+    control_points = _snap_ends_to_border(pieces.control_points, domain, eps)
+    is_line = pieces.degree == 1
+    lines = control_points[is_line][:, [0, 3]]
+    line_piece = np.flatnonzero(is_line)
+    cp, degree, curve_piece, apex = _separate(
+        control_points[~is_line], pieces.degree[~is_line], np.flatnonzero(~is_line), lines, domain, eps
+    )
+    stats["conflict_s"] = time.perf_counter() - clock
+    stats["pieces_final"] = len(lines) + len(cp)
+
+    clock = time.perf_counter()
+    x0, y0, x1, y1 = domain
+    corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    n_l, n_c = len(lines), len(cp)
+    points, inverse = np.unique(
+        np.concatenate([corners, lines[:, 0], lines[:, 1], cp[:, 0], cp[:, 3]]), axis=0, return_inverse=True
+    )
+    inverse = inverse.reshape(-1)
+    line_edges = np.stack([inverse[4 : 4 + n_l], inverse[4 + n_l : 4 + 2 * n_l]], axis=1)
+    line_edges, first = np.unique(np.sort(line_edges, axis=1), axis=0, return_index=True)
+    line_piece = line_piece[first]
+    chords = np.stack([inverse[4 + 2 * n_l : 4 + 2 * n_l + n_c], inverse[4 + 2 * n_l + n_c :]], axis=1)
+    tangent = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
+    fixed = np.concatenate([line_edges, chords])
+
+    n_border = int(_on_border(points, domain).sum())
+    floor_count = 2 * len(points) - n_border - 2
+    if max_triangles is not None and floor_count > max_triangles:
+        raise TriangleBudgetError(
+            f"triangulate: the {len(pieces)} cleaned-up pieces alone need at least {floor_count} triangles, "
+            f"more than max_triangles = {max_triangles}", floor_count
+        )
+    area0, budget = _size_target(domain, max_area, edge_length, max_triangles, floor_count, n_c)
+    target = _target_area(area0, grading, np.concatenate([lines.reshape(-1, 2, 2), cp[:, [0, 3]]]), cp, domain)
+    steiner = _steiner_points(points, fixed, domain, tangent, target, area0, budget, min_angle, eps)
+    stats["density_s"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    mesh, n_apex = _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, curve_piece, apex, domain, eps)
+    while max_triangles is not None and mesh.n_triangles > max_triangles and len(steiner):
+        keep = max(0, len(steiner) - (mesh.n_triangles - max_triangles + 1) // 2 - 1)
+        steiner = steiner[np.sort(np.random.default_rng(0).permutation(len(steiner))[:keep])]
+        mesh, n_apex = _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, curve_piece, apex, domain, eps)
+    if max_triangles is not None and mesh.n_triangles > max_triangles:
+        raise TriangleBudgetError(
+            f"triangulate: the curves alone need {mesh.n_triangles} triangles, more than max_triangles = {max_triangles}",
+            mesh.n_triangles,
+        )
+    stats["cdt_s"] = time.perf_counter() - clock
+    stats.update(apexes=n_apex, steiner=len(steiner), vertices=mesh.n_vertices, triangles=mesh.n_triangles)
+    return mesh
+
+
+def _snap_ends_to_border(cp, domain, eps) -> np.ndarray:
+    """Copy of cp (P, 4, 2) with end-point coordinates within ``eps`` of a domain side set exactly onto it."""
+    cp = cp.copy()
+    ends = cp[:, [0, 3]]
+    for axis, value in ((0, domain[0]), (1, domain[1]), (0, domain[2]), (1, domain[3])):
+        coord = ends[..., axis]
+        coord[np.abs(coord - value) <= eps] = value
+    cp[:, [0, 3]] = ends
+    return cp
+
+
+def _check_sizes(max_area, edge_length, grading, max_triangles, min_angle) -> None:
+    def positive(name, value):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise MeshError(f"triangulate: {name} must be a positive number, got {value!r}")
+
+    positive("max_area", max_area)
+    positive("edge_length", edge_length)
+    if max_area is not None and edge_length is not None:
+        raise MeshError("triangulate: give max_area or edge_length, not both")
+    if grading is not None and not (np.isfinite(grading) and grading >= 0):
+        raise MeshError(f"triangulate: grading must be a number >= 0, got {grading!r}")
+    if max_triangles is not None and not (int(max_triangles) == max_triangles and max_triangles >= 2):
+        raise MeshError(f"triangulate: max_triangles must be an integer >= 2, got {max_triangles!r}")
+    if not (0.0 <= min_angle <= _MAX_MIN_ANGLE):
+        raise MeshError(f"triangulate: min_angle must be in [0, {_MAX_MIN_ANGLE}] degrees, got {min_angle!r}")
+
+
+def _line_length(domain, max_area, edge_length, max_triangles) -> float:
+    """Longest line piece kept whole: the nominal edge length of the size target (an equilateral triangle of
+    ``max_area``, or of the domain's area over ``max_triangles`` / ``DEFAULT_TRIANGLES``). A line piece is one
+    mesh edge, so a longer one would leave the field along it only its two end vertices' features."""
+    if edge_length is not None:
+        return float(edge_length)
+    x0, y0, x1, y1 = domain
+    area = max_area or (x1 - x0) * (y1 - y0) / (max_triangles or DEFAULT_TRIANGLES)
+    return float(np.sqrt(area / _EQUILATERAL))
+
+
+def _size_target(domain, max_area, edge_length, max_triangles, floor_count, n_curved) -> tuple[float, int]:
+    """Area bound near the curves and the most Steiner points allowed (-1: no limit)."""
+    x0, y0, x1, y1 = domain
+    area = (x1 - x0) * (y1 - y0)
+    if max_area is not None:
+        area0 = float(max_area)
+    elif edge_length is not None:
+        area0 = _EQUILATERAL * float(edge_length) ** 2
+    elif max_triangles is not None:
+        area0 = 0.0
+    else:
+        area0 = area / (DEFAULT_TRIANGLES / 2)
+    if max_triangles is None:
+        return area0, -1
+    # each interior vertex adds two triangles; keep a reserve for the apexes (about 7 % of curved pieces)
+    budget = max(0, (int(max_triangles) - floor_count) // 2 - int(np.ceil(0.1 * n_curved)))
+    area0 = max(area0, _STEINER_PER_AREA * area / max(budget, 1))
+    return area0, budget
+
+
+def _target_area(area0: float, grading, segments: np.ndarray, cp: np.ndarray, domain):
+    """Target area as a function of position, (N, 2) float64 -> (N,) float64 domain units²; None when uniform."""
+    if not grading:
+        return None
+    x0, y0, x1, y1 = domain
+    cap = (x1 - x0) * (y1 - y0) / 4.0
+    h0 = np.sqrt(area0 / _EQUILATERAL)
+    # sample the pieces every h0 / 2 (chords for lines, 16 points for curves) for a distance look-up
+    a, b = segments[:, 0], segments[:, 1]
+    n = np.maximum(1, np.ceil(2.0 * np.hypot(*(b - a).T) / h0)).astype(np.int64)
+    n = np.minimum(n, 4096)
+    s = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    t = (s / np.repeat(n, n))[:, None]
+    idx = np.repeat(np.arange(len(segments)), n)
+    samples = [a[idx] + t * (b - a)[idx]]
+    if len(cp):
+        samples.append(bezier.flatten(cp, 16).reshape(-1, 2))
+    samples.append(np.array([[x0, y0]]) if not len(segments) else segments[:1, 0])
+    tree = cKDTree(np.concatenate(samples))
+
+    def target(xy):
+        d, _ = tree.query(xy)
+        return np.minimum(_EQUILATERAL * (h0 + grading * d) ** 2, cap)
+
+    return target
+
+
+# ---------------------------------------------------------------------------------------------- conflict loop
+
+
+def _separate(cp, degree, piece, lines, domain, eps):
+    """Halve curved pieces until their tangent triangles are free of conflicts.
+
+    cp : (C, 4, 2) float64; degree, piece : (C,); lines : (L, 2, 2) float64 line pieces
+    returns cp, degree, piece of the halved pieces and their apexes (C', 2) float64 (clamped into the domain)
+    """
+    x0, y0, x1, y1 = domain
+    lo_d, hi_d = np.array([x0, y0]), np.array([x1, y1])
+    corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+    min_chord = tol.snap_rel * np.hypot(x1 - x0, y1 - y0)
+    seg_lo, seg_hi = lines.min(axis=1), lines.max(axis=1)
+    for _ in range(_MAX_ROUNDS):
+        a, b = cp[:, 0], cp[:, 3]
+        apex = bezier.tangent_apex(cp)
+        bad = ~np.isfinite(apex).all(axis=1)
+        apex[bad] = 0.5 * (a[bad] + b[bad])
+        bad |= ((apex < lo_d - eps) | (apex > hi_d + eps)).any(axis=1)
+        tri = _ccw_triangles(a, apex, b)
+        lo, hi = tri.min(axis=1), tri.max(axis=1)
+
+        oi, oj = _box_pairs(lo, hi, lo, hi, same=True)
+        hit = ~(_separated(tri[oi], tri[oj], eps) | _separated(tri[oj], tri[oi], eps))
+        oi, oj = oi[hit], oj[hit]
+        li, lj = np.hypot(*(b[oi] - a[oi]).T), np.hypot(*(b[oj] - a[oj]).T)
+        bad[oi[li >= 0.5 * lj]] = True
+        bad[oj[lj >= 0.5 * li]] = True
+
+        i, k = _box_pairs(lo, hi, seg_lo, seg_hi)
+        seg = lines[k]
+        d = _signed(seg[:, 0], seg[:, 1], tri[i])
+        apart = _separated(tri[i], seg, eps) | (d.max(axis=1) <= eps) | (d.min(axis=1) >= -eps)
+        bad[i[~apart]] = True
+
+        points = np.unique(np.concatenate([corners, lines.reshape(-1, 2), a, b]), axis=0)
+        i, k = _box_pairs(lo, hi, points, points)
+        p = points[k]
+        own = (p == a[i]).all(axis=1) | (p == b[i]).all(axis=1)
+        inside = (_signed_edges(tri[i], p) >= -eps).all(axis=1) & ~own
+        bad[i[inside]] = True
+
+        if not bad.any():
+            return cp, degree, piece, np.clip(apex, lo_d, hi_d)
+        short = bad & (np.hypot(*(b - a).T) < min_chord)
+        if short.any():
+            c = int(np.flatnonzero(short)[0])
+            raise MeshError(_separation_failure(cp, piece, c, oi, oj))
+        left, right = bezier.split(cp[bad], np.full(int(bad.sum()), 0.5))
+        cp = np.concatenate([cp[~bad], left, right])
+        degree = np.concatenate([degree[~bad], degree[bad], degree[bad]])
+        piece = np.concatenate([piece[~bad], piece[bad], piece[bad]])
+    raise MeshError(f"triangulate: tangent triangles still conflict after {_MAX_ROUNDS} rounds of halving")
+
+
+def _separation_failure(cp, piece, c, oi, oj) -> str:
+    """Message when piece ``c`` cannot be halved any more; ``oi, oj`` (K,) are the overlapping pairs."""
+    t0, t1 = bezier.end_tangents(cp)
+    ends, away = (cp[:, 0], cp[:, 3]), (t0, -t1)  # unit tangents pointing away from each end
+    for e in range(2):
+        for f in range(2):
+            same = (ends[e][oi] == ends[f][oj]).all(axis=1)
+            u, v = away[e][oi], away[f][oj]
+            tangent = same & (np.abs(_cross(u, v)) < np.sqrt(tol.distinct_rel)) & ((u * v).sum(axis=1) > 0)
+            if tangent.any():
+                k = int(np.flatnonzero(tangent)[0])
+                return (
+                    f"triangulate: curved pieces {int(piece[oi[k]])} and {int(piece[oj[k]])} are tangent at their "
+                    f"shared endpoint {_xy(ends[e][oi[k]])}; no triangle can hold either"
+                )
+    return (
+        f"triangulate: cannot separate the tangent triangle of curved piece {int(piece[c])} near {_xy(cp[c, 0])} "
+        "from its neighbours"
+    )
+
+
+def _ccw_triangles(a, x, b) -> np.ndarray:
+    """Triangles (A, X, B) as counter-clockwise corner stacks: (N, 2) each -> (N, 3, 2)."""
+    left = _cross(b - a, x - a) > 0
+    return np.where(left[:, None, None], np.stack([a, b, x], axis=1), np.stack([a, x, b], axis=1))
+
+
+def _signed(p, q, pts) -> np.ndarray:
+    """Signed distances of pts (N, K, 2) to the lines p -> q ((N, 2) each), left positive -> (N, K)."""
+    d = q - p
+    return _cross(d[:, None], pts - p[:, None]) / np.hypot(*d.T)[:, None]
+
+
+def _signed_edges(tri, p) -> np.ndarray:
+    """Signed distances of points p (N, 2) to the three edges of CCW triangles (N, 3, 2) -> (N, 3)."""
+    return np.stack([_signed(tri[:, k], tri[:, (k + 1) % 3], p[:, None])[:, 0] for k in range(3)], axis=1)
+
+
+def _separated(tri, other, eps) -> np.ndarray:
+    """Whether an edge line of CCW triangles (N, 3, 2) has all points of ``other`` (N, K, 2) outside (within eps)."""
+    out = np.zeros(len(tri), dtype=bool)
+    for k in range(3):
+        out |= _signed(tri[:, k], tri[:, (k + 1) % 3], other).max(axis=1) <= eps
+    return out
+
+
+def _box_pairs(lo_a, hi_a, lo_b, hi_b, *, same=False) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs of overlapping closed boxes, found through a hierarchy of uniform grids.
+
+    Each box goes to the level whose cell is at least its size; two levels meet on the coarser one's grid,
+    where every box covers at most 2 × 2 cells, so the work follows the output even for mixed sizes.
+    lo_a, hi_a : (A, 2) float64 box corners; lo_b, hi_b : (B, 2) float64
+    same : the two sets are one set; only pairs i < j are returned
+    returns i, j : (K,) int64
+    """
+    empty = np.zeros(0, dtype=np.int64)
+    if not len(lo_a) or not len(lo_b):
+        return empty, empty
+    origin = np.minimum(lo_a.min(axis=0), lo_b.min(axis=0))
+    span = float((np.maximum(hi_a.max(axis=0), hi_b.max(axis=0)) - origin).max())
+    base = max(span / 65536.0, np.finfo(float).tiny)
+
+    def level(lo, hi):
+        return np.ceil(np.log2(np.maximum((hi - lo).max(axis=1), base) / base)).astype(np.int64)
+
+    level_a, level_b = level(lo_a, hi_a), level(lo_b, hi_b)
+    out_i, out_j = [], []
+    for la in np.unique(level_a):
+        ia = np.flatnonzero(level_a == la)
+        for lb in np.unique(level_b):
+            if same and lb < la:
+                continue
+            jb = np.flatnonzero(level_b == lb)
+            i, j = _grid_join(lo_a[ia], hi_a[ia], lo_b[jb], hi_b[jb], origin, base * 2.0 ** max(la, lb))
+            i, j = ia[i], jb[j]
+            if same and la == lb:  # found both ways round
+                keep = i < j
+                i, j = i[keep], j[keep]
+            elif same:
+                i, j = np.minimum(i, j), np.maximum(i, j)
+            out_i.append(i)
+            out_j.append(j)
+    return np.concatenate(out_i), np.concatenate(out_j)
+
+
+def _grid_join(lo_a, hi_a, lo_b, hi_b, origin, cell) -> tuple[np.ndarray, np.ndarray]:
+    """Overlapping pairs of boxes on one grid of square cells; each pair is reported once."""
+    top = np.maximum(hi_a.max(axis=0), hi_b.max(axis=0))
+    rows = int((top[1] - origin[1]) / cell) + 2
+
+    def cells(lo, hi):
+        i0 = np.floor((lo - origin) / cell).astype(np.int64)
+        n = np.floor((hi - origin) / cell).astype(np.int64) - i0 + 1
+        count = n[:, 0] * n[:, 1]
+        box = np.repeat(np.arange(len(lo)), count)
+        k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+        nx = n[box, 0]
+        return box, (i0[box, 0] + k % nx) * rows + i0[box, 1] + k // nx
+
+    box_a, key_a = cells(lo_a, hi_a)
+    box_b, key_b = cells(lo_b, hi_b)
+    order = np.argsort(key_b, kind="stable")
+    box_b, key_b = box_b[order], key_b[order]
+    start, stop = np.searchsorted(key_b, key_a, "left"), np.searchsorted(key_b, key_a, "right")
+    count = stop - start
+    i, key = np.repeat(box_a, count), np.repeat(key_a, count)
+    j = box_b[np.repeat(start, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    # report each pair once: in the cell holding the lower-left corner of the two boxes' intersection
+    ref = np.floor((np.maximum(lo_a[i], lo_b[j]) - origin) / cell).astype(np.int64)
+    keep = (ref[:, 0] * rows + ref[:, 1] == key) & (lo_a[i] <= hi_b[j]).all(axis=1) & (lo_b[j] <= hi_a[i]).all(axis=1)
+    return i[keep], j[keep]
+
+
+# ---------------------------------------------------------------------------------------------- CDT
+
+
+def _on_border(points, domain) -> np.ndarray:
+    x0, y0, x1, y1 = domain
+    return (points[:, 0] == x0) | (points[:, 0] == x1) | (points[:, 1] == y0) | (points[:, 1] == y1)
+
+
+def _border_edges(points, domain) -> np.ndarray:
+    """Chains of the points lying exactly on each side of the domain: (K, 2) int64 vertex pairs."""
+    x0, y0, x1, y1 = domain
+    out = []
+    for axis, value in ((1, y0), (0, x1), (1, y1), (0, x0)):
+        on = np.flatnonzero(points[:, axis] == value)
+        on = on[np.argsort(points[on, 1 - axis], kind="stable")]
+        out.append(np.stack([on[:-1], on[1:]], axis=1))
+    return np.concatenate(out)
+
+
+def _cdt(points, edges, domain) -> cdt.Triangulation:
+    """Constrained Delaunay triangulation (not finalised) of points (N, 2) with edges (K, 2) and the border."""
+    x0, y0, x1, y1 = domain
+    t = cdt.Triangulation(
+        cdt.VertexInsertionOrder.AS_PROVIDED,
+        cdt.IntersectingConstraintEdges.TRY_RESOLVE,
+        tol.cdt_min_dist_rel * float(np.hypot(x1 - x0, y1 - y0)),
+    )
+    t.insert_vertices(np.ascontiguousarray(points, dtype=np.float64))
+    all_edges = np.concatenate([_border_edges(points, domain), edges.reshape(-1, 2)])
+    t.insert_edges(np.ascontiguousarray(all_edges, dtype=np.uint32))
+    return t
+
+
+def _arrays(t: cdt.Triangulation) -> tuple[np.ndarray, np.ndarray]:
+    v = t.vertices_array()
+    return np.stack([v["x"], v["y"]], axis=1), t.triangles_array()["vertices"].astype(np.int64)
+
+
+def _steiner_points(points, fixed, domain, tangent, target, area0, budget, min_angle, eps) -> np.ndarray:
+    """Interior points (S, 2) float64 of a refined chord-only CDT, off the constraints and the tangent triangles."""
+    t = _cdt(points, fixed, domain)
+    n0 = 3 + len(points)  # pythoncdt keeps the three super-triangle vertices first until it is finalised
+    x0, y0, x1, y1 = domain
+    levels = [area0]
+    while target is not None and levels[-1] * 4.0 < (x1 - x0) * (y1 - y0) / 4.0:
+        levels.append(levels[-1] * 4.0)
+    h_min = 0.25 * np.sqrt(area0 / _EQUILATERAL)
+    limit = budget if budget >= 0 else np.iinfo(np.int32).max
+
+    def left():
+        return int(limit - (t.vertices_count() - n0))
+
+    for k, level in enumerate(reversed(levels)):
+        if left() <= 0:
+            break
+        freeze = t.collect_outer_triangles()
+        if len(levels) > 1:
+            v, tri = _arrays(t)
+            coarse = np.flatnonzero(target(v[tri].mean(axis=1)) >= 4.0 * level)
+            freeze |= set(coarse.tolist()) if k else set()
+        t.refine_triangles(left(), cdt.RefinementCriterion.LARGEST_AREA, level, to_erase=freeze, min_edge_length=h_min)
+    if min_angle > 0 and left() > 0:
+        t.refine_triangles(
+            left(), cdt.RefinementCriterion.SMALLEST_ANGLE, cdt.deg_to_rad(min_angle),
+            to_erase=t.collect_outer_triangles(), min_edge_length=h_min,
+        )
+    v, _ = _arrays(t)
+    on_edge = np.zeros(len(v), dtype=bool)
+    fixed_now = np.array([(e.v1, e.v2) for e in t.fixed_edges_iter()], dtype=np.int64).reshape(-1, 2)
+    on_edge[fixed_now.ravel()] = True
+    new = np.arange(n0, len(v))
+    new = new[~on_edge[new] | _on_border(v[new], domain)]
+    pts = v[new]
+    lo, hi = tangent.min(axis=1), tangent.max(axis=1)
+    i, k = _box_pairs(lo, hi, pts, pts)
+    inside = (_signed_edges(tangent[i], pts[k]) >= -eps).all(axis=1)
+    drop = np.zeros(len(pts), dtype=bool)
+    drop[k[inside]] = True
+    return pts[~drop]
+
+
+def _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, curve_piece, apex, domain, eps):
+    """Build the final CDT, adding apexes where a chord's triangle does not contain its piece.
+
+    returns Mesh, number of apexes inserted
+    """
+    base = np.concatenate([points, steiner])
+    edges = np.concatenate([line_edges, chords])
+    need = np.zeros(len(cp), dtype=bool)
+    while True:  # terminates: every pass adds apexes, and a piece with its apex is alone in its tangent triangle
+        src = np.flatnonzero(need)
+        unique_apex, ids = np.unique(apex[src], axis=0, return_inverse=True)  # touching tangent triangles share X
+        ids = len(base) + ids.reshape(-1)
+        apex_edges = np.concatenate([np.stack([chords[src, 0], ids], 1), np.stack([ids, chords[src, 1]], 1)])
+        pts = np.concatenate([base, unique_apex])
+        t = _cdt(pts, np.concatenate([edges, apex_edges]), domain)
+        t.erase_outer_triangles()
+        _check_constraints_kept(t, pts, domain)
+        v, tri = _arrays(t)
+        p = v[tri]
+        flip = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
+        tri[flip] = tri[flip][:, ::-1]
+        holder = _chord_triangles(tri, chords, cp, len(v))
+        corner = v[tri[holder]]
+        dist = np.stack([min_side_distance(cp, corner[:, k], corner[:, (k + 1) % 3]) for k in range(3)], axis=1)
+        shared = np.ones(len(cp), dtype=bool)  # all but one of the pieces sharing a triangle
+        shared[np.unique(holder, return_index=True)[1]] = False
+        missing = (dist.min(axis=1) < -eps) | shared
+        if not missing.any():
+            break
+        if need[missing].any():
+            c = int(np.flatnonzero(missing & need)[0])
+            raise MeshError(
+                f"triangulate: curved piece {int(curve_piece[c])} near {_xy(cp[c, 0])} is not alone in its tangent triangle"
+            )
+        need |= missing
+    mesh = Mesh(
+        domain=domain,
+        vertices=v,
+        triangles=tri,
+        disc_edges=line_edges.astype(np.int64),
+        curved_triangles=holder.astype(np.int64),
+        curve_endpoints=chords.astype(np.int64),
+        curve_control_points=cp,
+        curve_degree=degree.astype(np.int8),
+        disc_edge_piece=line_piece.astype(np.int64),
+        curve_piece=curve_piece.astype(np.int64),
+    )
+    return mesh, int(need.sum())
+
+
+def _check_constraints_kept(t, pts, domain) -> None:
+    """Raise if the CDT added vertices (crossing constraints) or split a line piece, chord or apex edge."""
+    if t.vertices_count() != len(pts):
+        extra = _arrays(t)[0][len(pts)]
+        raise MeshError(f"triangulate: constraint edges cross near {_xy(extra)} (clean-up left an intersection)")
+    x0, y0, x1, y1 = domain
+    for _, originals in t.piece_to_originals_iter():
+        for e in originals:
+            ab = pts[[e.v1, e.v2]]
+            if not ((ab[:, 0] == x0).all() or (ab[:, 0] == x1).all() or (ab[:, 1] == y0).all() or (ab[:, 1] == y1).all()):
+                raise MeshError(f"triangulate: a vertex lies on the edge {_xy(ab[0])} - {_xy(ab[1])}, which would be split")
+
+
+def _chord_triangles(tri, chords, cp, n) -> np.ndarray:
+    """Index of the triangle on the curved side of each chord: tri (T, 3) CCW, chords (C, 2) -> (C,) int64."""
+    if not len(chords):
+        return np.zeros(0, dtype=np.int64)
+    directed = tri[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    key = directed[:, 0] * np.int64(n) + directed[:, 1]
+    order = np.argsort(key)
+    a, b = cp[:, 0], cp[:, 3]
+    mid = bezier.evaluate(cp, np.full(len(cp), 0.5))
+    left = _cross(b - a, mid - a) > 0
+    want = np.where(left, chords[:, 0] * np.int64(n) + chords[:, 1], chords[:, 1] * np.int64(n) + chords[:, 0])
+    pos = np.minimum(np.searchsorted(key[order], want), len(key) - 1)
+    found = key[order][pos] == want
+    if not found.all():
+        c = int(np.flatnonzero(~found)[0])
+        raise MeshError(f"triangulate: the chord of the curved piece at {_xy(a[c])} - {_xy(b[c])} is not a mesh edge")
+    return order[pos] // 3
+
+
+def _cross(u, v):
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _xy(p) -> str:
+    return f"({p[0]:.9g}, {p[1]:.9g})"

@@ -1,0 +1,433 @@
+"""Reader and writer of ``.dfield`` files (spec/dfield.md): PNG-style typed, length-prefixed, CRC-checked
+chunks after a GLB-style 16-byte header.
+
+``write_dfield`` / ``encode_dfield`` build a file from ``DfieldContents``; ``read_dfield`` /
+``decode_dfield`` parse one back, checking every MUST of the spec before anything is allocated or
+decompressed, and raise exactly one ``FormatError`` on any violation. ``read_dfield_info`` reads the
+header and the chunks' fixed-size fields only (for ``dfc stats``). The mesh chunks live in
+``dfc.io.meshcodec``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import struct
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+import zstandard
+
+from ..errors import FormatError, MeshError
+from ..field.quantize import MAX_FEATURE_BITS, dequantize_features, quantize_features
+from ..geometry.mesh import Mesh
+from .atomic import write_bytes_atomic
+from .meshcodec import compress, decode_mesh, decompress, encode_roundtripped, mesh_info
+
+__all__ = [
+    "DfieldContents",
+    "write_dfield",
+    "read_dfield",
+    "read_dfield_info",
+    "encode_dfield",
+    "decode_dfield",
+    "SIGNATURE",
+    "CONTAINER_VERSION",
+    "CONTENT_VERSION",
+]
+
+SIGNATURE = b"\x89DFL\r\n\x1a\n"
+CONTAINER_VERSION = (1, 0)
+CONTENT_VERSION = (1, 0)
+MAX_FILE_BYTES = 2**30
+MAX_CHUNK = 2**30 - 1
+MAX_HEADER_JSON = 2**20
+MAX_JSON_DEPTH = 32
+MAX_ROWS, MAX_K, MAX_S, MAX_FEATURE_ELEMENTS = 2**27, 256, 4096, 2**28
+MAX_TENSORS, MAX_RANK, MAX_MLP_ELEMENTS = 256, 4, 2**24
+MAX_CHANNELS = 64
+CRITICAL_ORDER = (b"HEAD", b"MESH", b"TOPO", b"FEAT", b"MLPW", b"DEND")
+
+_FILE_HEAD = struct.Struct("<8sHHI")
+_FEAT_HEAD = struct.Struct("<IIHBx")
+_MLP_HEAD = struct.Struct("<II")
+_MLP_RECORD = struct.Struct("<60sI4I")
+_NAME = re.compile(r"[A-Za-z0-9_.]{1,60}")
+_TRANSFORMS = ("identity", "log")
+
+
+@dataclass
+class DfieldContents:
+    """Everything a ``.dfield`` file holds.
+
+    header : dict, the header JSON (spec §5): domain, channels, value_transform, times, model, encoder
+    mesh : Mesh, in decoder view (``dfc.io.meshcodec.roundtrip_mesh``)
+    features : (S, N, K) float32, feature bank per time slice (S = 1 for a static field)
+    mlp : dict name -> float32 array, the decoder's parameters (stored as float16)
+    """
+
+    header: dict
+    mesh: Mesh
+    features: np.ndarray
+    mlp: dict[str, np.ndarray]
+
+
+# ----------------------------------------------------------------------------------------------- header
+def _check_header(h, S: int) -> None:
+    """Spec §5 checks of a parsed header for a bank of S slices; raise FormatError."""
+    if not isinstance(h, dict):
+        raise FormatError("HEAD: header JSON is not an object")
+    missing = {"format", "content_version", "domain", "channels", "value_transform", "times", "model"} - set(h)
+    if missing:
+        raise FormatError(f"HEAD: missing keys {sorted(missing)}")
+    if h["format"] != "dfield":
+        raise FormatError(f"HEAD: format is {h['format']!r}, expected 'dfield'")
+    cv = h["content_version"]
+    if not (isinstance(cv, list) and len(cv) == 2 and all(type(v) is int and v >= 0 for v in cv)):
+        raise FormatError("HEAD: content_version must be [major, minor]")
+    if cv[0] != CONTENT_VERSION[0]:
+        raise FormatError(f"HEAD: unsupported content version {cv[0]}.{cv[1]}")
+    d = h["domain"]
+    if not (isinstance(d, list) and len(d) == 4 and all(_is_number(v) for v in d) and d[0] < d[2] and d[1] < d[3]):
+        raise FormatError("HEAD: domain must be [x0, y0, x1, y1] with x0 < x1 and y0 < y1")
+    ch = h["channels"]
+    if not (isinstance(ch, list) and 1 <= len(ch) <= MAX_CHANNELS and all(isinstance(c, str) and c for c in ch)
+            and len(set(ch)) == len(ch)):
+        raise FormatError(f"HEAD: channels must be 1..{MAX_CHANNELS} distinct non-empty strings")
+    if h["value_transform"] not in _TRANSFORMS:
+        raise FormatError(f"HEAD: value_transform must be one of {_TRANSFORMS}")
+    times = h["times"]
+    if times is None:
+        if S != 1:
+            raise FormatError(f"HEAD: times is null but the feature bank has {S} slices")
+    elif not (isinstance(times, list) and len(times) == S and all(_is_number(t) for t in times)
+              and all(a < b for a, b in zip(times, times[1:]))):
+        raise FormatError(f"HEAD: times must be {S} finite numbers, strictly increasing")
+    if not isinstance(h["model"], dict) or not isinstance(h.get("encoder", {}), dict):
+        raise FormatError("HEAD: model and encoder must be objects")
+
+
+def _is_number(v) -> bool:
+    return type(v) in (int, float) and math.isfinite(v)
+
+
+def _no_duplicates(pairs):
+    keys = [k for k, _ in pairs]
+    if len(set(keys)) != len(keys):
+        raise FormatError("HEAD: header JSON repeats a key")
+    return dict(pairs)
+
+
+def _reject_constant(name):
+    raise FormatError(f"HEAD: header JSON contains {name}, which is not JSON")
+
+
+def _parse_header(data: bytes) -> dict:
+    text = decompress(data, _frame_size(data, MAX_HEADER_JSON, "HEAD"), "HEAD")
+    # bound json.loads' recursion first; brackets inside strings only make this over-count
+    if _bracket_depth(text) > MAX_JSON_DEPTH:
+        raise FormatError(f"HEAD: header JSON nested deeper than {MAX_JSON_DEPTH}")
+    try:
+        h = json.loads(text.decode("utf-8"), object_pairs_hook=_no_duplicates, parse_constant=_reject_constant)
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise FormatError(f"HEAD: header is not UTF-8 JSON ({exc})") from None
+    return h
+
+
+def _bracket_depth(text: bytes) -> int:
+    """Maximum running depth of [ and { minus ] and } (ignores strings: an upper bound on the JSON depth)."""
+    b = np.frombuffer(text, np.uint8)
+    step = np.isin(b, (ord("["), ord("{"))).astype(np.int64) - np.isin(b, (ord("]"), ord("}"))).astype(np.int64)
+    return int(np.cumsum(step).max(initial=0))
+
+
+def _frame_size(frame: bytes, limit: int, chunk: str) -> int:
+    """Declared content size of a zstd frame whose size is not known in advance, checked against ``limit``."""
+    try:
+        size = zstandard.get_frame_parameters(frame).content_size
+    except zstandard.ZstdError:
+        raise FormatError(f"{chunk}: zstd frame header is corrupt") from None
+    if size > limit:
+        raise FormatError(f"{chunk}: declared size {size} exceeds the limit {limit}")
+    return size
+
+
+# ----------------------------------------------------------------------------------------------- framing
+def _chunk(ctype: bytes, data: bytes) -> bytes:
+    pad = b"\0" * (-len(data) % 4)
+    return struct.pack("<I", len(data)) + ctype + data + pad + struct.pack("<I", zlib.crc32(ctype + data))
+
+
+def _split_chunks(buf: bytes) -> tuple[dict[bytes, memoryview], dict[str, int]]:
+    """Check the file header and framing (spec §2, §3); return critical chunk data and bytes per chunk."""
+    if len(buf) < _FILE_HEAD.size:
+        raise FormatError("file is shorter than the 16-byte .dfield header")
+    sig, major, minor, length = _FILE_HEAD.unpack_from(buf)
+    if sig != SIGNATURE:
+        raise FormatError("not a .dfield file (bad signature)")
+    if major != CONTAINER_VERSION[0]:
+        raise FormatError(f"unsupported container version {major}.{minor}")
+    if length != len(buf):
+        raise FormatError(f"file length field says {length} bytes, the file has {len(buf)} (truncated?)")
+    view = memoryview(buf)
+    pos, chunks, sizes, expect = _FILE_HEAD.size, {}, {}, 0
+    while pos < len(buf):
+        if len(buf) - pos < 12:
+            raise FormatError(f"chunk at offset {pos} is truncated")
+        (n,) = struct.unpack_from("<I", buf, pos)
+        ctype = bytes(buf[pos + 4:pos + 8])
+        name = ctype.decode("latin-1")
+        if not all(65 <= c <= 90 or 97 <= c <= 122 for c in ctype):
+            raise FormatError(f"chunk at offset {pos} has an invalid type {ctype!r}")
+        padded = n + (-n % 4)
+        if n > MAX_CHUNK or padded + 12 > len(buf) - pos:
+            raise FormatError(f"{name}: length {n} runs past the end of the file")
+        data = view[pos + 8:pos + 8 + n]
+        if any(buf[pos + 8 + n:pos + 8 + padded]):
+            raise FormatError(f"{name}: padding is not zero")
+        (crc,) = struct.unpack_from("<I", buf, pos + 8 + padded)
+        if zlib.crc32(data, zlib.crc32(ctype)) != crc:
+            raise FormatError(f"{name}: CRC mismatch (corrupt file)")
+        if expect == len(CRITICAL_ORDER):
+            raise FormatError(f"{name}: chunk after DEND")
+        if ctype[0] & 0x20:  # ancillary
+            if expect == 0:
+                raise FormatError(f"{name}: ancillary chunk before HEAD")
+        elif ctype != CRITICAL_ORDER[expect]:
+            known = ctype in CRITICAL_ORDER
+            raise FormatError(f"{name}: {'critical chunk out of order' if known else 'unknown critical chunk'}"
+                              f", expected {CRITICAL_ORDER[expect].decode()}")
+        else:
+            chunks[ctype] = data
+            expect += 1
+        sizes[name] = sizes.get(name, 0) + 12 + padded
+        pos += 12 + padded
+    if expect < len(CRITICAL_ORDER):
+        raise FormatError(f"file ends before chunk {CRITICAL_ORDER[expect].decode()} (truncated?)")
+    if len(chunks[b"DEND"]):
+        raise FormatError("DEND: chunk is not empty")
+    return chunks, sizes
+
+
+def _read(path, max_bytes: int) -> bytes:
+    size = os.stat(path).st_size
+    if size > max_bytes:
+        raise FormatError(f"{os.fspath(path)}: {size} bytes exceeds the limit of {max_bytes}")
+    with open(path, "rb") as f:
+        return f.read(max_bytes + 1)
+
+
+# ----------------------------------------------------------------------------------------------- FEAT / MLPW
+def _feat_info(data) -> dict:
+    if len(data) < _FEAT_HEAD.size:
+        raise FormatError("FEAT: chunk shorter than its fixed fields")
+    S, N, K, bits = _FEAT_HEAD.unpack_from(data)
+    if data[11]:
+        raise FormatError("FEAT: reserved field is not zero")
+    if not (1 <= S <= MAX_S and 1 <= N <= MAX_ROWS and 1 <= K <= MAX_K and S * N * K <= MAX_FEATURE_ELEMENTS):
+        raise FormatError(f"FEAT: bank shape ({S}, {N}, {K}) outside the limits")
+    if not 1 <= bits <= MAX_FEATURE_BITS:
+        raise FormatError(f"FEAT: {bits} bits, expected 1..{MAX_FEATURE_BITS}")
+    if len(data) < _FEAT_HEAD.size + 8 * K:
+        raise FormatError("FEAT: chunk too short for its scales and offsets")
+    return {"slices": S, "rows": N, "width": K, "bits": bits}
+
+
+def _decode_features(data) -> np.ndarray:
+    info = _feat_info(data)
+    S, N, K, bits = info["slices"], info["rows"], info["width"], info["bits"]
+    scale = np.frombuffer(data, "<f4", K, _FEAT_HEAD.size).astype(np.float32)
+    offset = np.frombuffer(data, "<f4", K, _FEAT_HEAD.size + 4 * K).astype(np.float32)
+    if not (np.all(np.isfinite(scale)) and np.all(scale > 0) and np.all(np.isfinite(offset))):
+        raise FormatError("FEAT: scales must be finite and positive, offsets finite")
+    dtype = "<u1" if bits <= 8 else "<u2"
+    n = S * K * N * np.dtype(dtype).itemsize
+    raw = decompress(bytes(data[_FEAT_HEAD.size + 8 * K:]), n, "FEAT")
+    q = np.frombuffer(raw, dtype).reshape(S, K, N)
+    if q.max() > 2**bits - 1:
+        raise FormatError(f"FEAT: quantised value above 2**{bits} - 1")
+    with np.errstate(over="ignore", invalid="ignore"):
+        F = dequantize_features(q.transpose(0, 2, 1), scale, offset)
+    if not np.all(np.isfinite(F)):
+        raise FormatError("FEAT: a dequantised feature is not finite")
+    return np.ascontiguousarray(F)
+
+
+def _encode_features(F: np.ndarray, bits: int, level: int) -> bytes:
+    q, scale, offset = quantize_features(F, bits)
+    S, N, K = F.shape
+    body = np.ascontiguousarray(q.transpose(0, 2, 1)).astype("<u1" if bits <= 8 else "<u2").tobytes()
+    return (_FEAT_HEAD.pack(S, N, K, bits) + scale.astype("<f4").tobytes() + offset.astype("<f4").tobytes()
+            + compress(body, level))
+
+
+def _mlp_table(data) -> list[tuple[str, tuple[int, ...]]]:
+    if len(data) < _MLP_HEAD.size:
+        raise FormatError("MLPW: chunk shorter than its fixed fields")
+    n, total = _MLP_HEAD.unpack_from(data)
+    if not 1 <= n <= MAX_TENSORS or total > MAX_MLP_ELEMENTS:
+        raise FormatError(f"MLPW: {n} tensors / {total} elements outside the limits")
+    if len(data) < _MLP_HEAD.size + n * _MLP_RECORD.size:
+        raise FormatError("MLPW: chunk too short for its tensor table")
+    table, count = [], 0
+    for i in range(n):
+        raw_name, rank, *dims = _MLP_RECORD.unpack_from(data, _MLP_HEAD.size + i * _MLP_RECORD.size)
+        name = raw_name.rstrip(b"\0")
+        if b"\0" in name or not _NAME.fullmatch(name.decode("latin-1")):
+            raise FormatError(f"MLPW: tensor {i} has an invalid name")
+        if rank > MAX_RANK or any(d < 1 for d in dims[:rank]) or any(dims[rank:]):
+            raise FormatError(f"MLPW: tensor {name.decode()} has an invalid shape")
+        shape = tuple(dims[:rank])
+        count += math.prod(shape)
+        if count > total:
+            raise FormatError("MLPW: tensor sizes exceed the declared element count")
+        table.append((name.decode("ascii"), shape))
+    if count != total or len({t[0] for t in table}) != n:
+        raise FormatError("MLPW: element count mismatch or repeated tensor name")
+    return table
+
+
+def _decode_mlp(data) -> dict[str, np.ndarray]:
+    table = _mlp_table(data)
+    total = sum(math.prod(s) for _, s in table)
+    raw = decompress(bytes(data[_MLP_HEAD.size + len(table) * _MLP_RECORD.size:]), 2 * total, "MLPW")
+    values = np.frombuffer(raw, "<f2")
+    if not np.all(np.isfinite(values)):
+        raise FormatError("MLPW: a weight is not finite")
+    out, pos = {}, 0
+    for name, shape in table:
+        size = math.prod(shape)
+        out[name] = values[pos:pos + size].astype(np.float32).reshape(shape)
+        pos += size
+    return out
+
+
+def _encode_mlp(mlp: dict[str, np.ndarray], level: int) -> bytes:
+    if not 1 <= len(mlp) <= MAX_TENSORS:
+        raise FormatError(f"cannot write: the MLP needs 1..{MAX_TENSORS} tensors, got {len(mlp)}")
+    records, values = [], []
+    for name, w in mlp.items():
+        w = np.asarray(w, dtype=np.float32)
+        if not (isinstance(name, str) and _NAME.fullmatch(name)) or w.ndim > MAX_RANK or 0 in w.shape:
+            raise FormatError(f"cannot write: MLP tensor {name!r} {w.shape} has an invalid name or shape")
+        with np.errstate(over="ignore"):
+            h = w.astype("<f2")
+        if not np.all(np.isfinite(h)):
+            raise FormatError(f"cannot write: MLP tensor {name!r} is not finite in float16")
+        dims = list(w.shape) + [0] * (MAX_RANK - w.ndim)
+        records.append(_MLP_RECORD.pack(name.encode("ascii"), w.ndim, *dims))
+        values.append(h.ravel())
+    flat = np.concatenate(values)
+    if flat.size > MAX_MLP_ELEMENTS:
+        raise FormatError(f"cannot write: the MLP has {flat.size} weights, the limit is {MAX_MLP_ELEMENTS}")
+    return _MLP_HEAD.pack(len(mlp), flat.size) + b"".join(records) + compress(flat.tobytes(), level)
+
+
+# ----------------------------------------------------------------------------------------------- public API
+def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8,
+                  compression_level: int = 19) -> tuple[bytes, dict[str, int]]:
+    """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
+
+    ``contents.mesh`` should be ``roundtrip_mesh(mesh, bits)``, the view the features were fitted on: it is
+    stored with Draco at the precision it came from, and any other valid mesh losslessly (raw), so the file
+    always decodes to exactly ``contents.mesh``. ``feature_bits`` in 1..16; ``compression_level`` is the
+    zstd level. Raises ``FormatError`` when the contents would make an invalid file and ``MeshError`` when
+    the mesh is invalid.
+    """
+    F = np.asarray(contents.features)
+    if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
+        raise FormatError(f"cannot write: features must be a finite (S, N, K) float array, got {F.dtype} {F.shape}")
+    header = {**contents.header, "format": "dfield", "content_version": list(CONTENT_VERSION)}
+    _check_header(header, F.shape[0])
+    if tuple(float(v) for v in header["domain"]) != tuple(float(v) for v in contents.mesh.domain):
+        raise FormatError(f"cannot write: header domain {header['domain']} differs from the mesh's")
+    if not 1 <= feature_bits <= MAX_FEATURE_BITS:
+        raise FormatError(f"cannot write: feature_bits must be in 1..{MAX_FEATURE_BITS}, got {feature_bits}")
+    try:
+        text = json.dumps(header, allow_nan=False, ensure_ascii=False).encode("utf-8")
+    except (TypeError, ValueError) as exc:
+        raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
+    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level)
+    parts = [(b"HEAD", compress(text, compression_level)), (b"MESH", mesh_data), (b"TOPO", topo_data),
+             (b"FEAT", _encode_features(F.astype(np.float32), feature_bits, compression_level)),
+             (b"MLPW", _encode_mlp(contents.mlp, compression_level)), (b"DEND", b"")]
+    body = b"".join(_chunk(t, d) for t, d in parts)
+    sizes = {t.decode(): 12 + len(d) + (-len(d) % 4) for t, d in parts}
+    if _FILE_HEAD.size + len(body) > MAX_FILE_BYTES:
+        raise FormatError("cannot write: the file would exceed 1 GiB")
+    head = _FILE_HEAD.pack(SIGNATURE, *CONTAINER_VERSION, _FILE_HEAD.size + len(body))
+    return head + body, sizes
+
+
+def write_dfield(path: str | os.PathLike, contents: DfieldContents, *, feature_bits: int = 8,
+                 compression_level: int = 19) -> dict[str, int]:
+    """Write ``contents`` to ``path`` atomically; return bytes per chunk type (see ``encode_dfield``)."""
+    data, sizes = encode_dfield(contents, feature_bits=feature_bits, compression_level=compression_level)
+    write_bytes_atomic(path, data)
+    return sizes
+
+
+def decode_dfield(buf: bytes) -> DfieldContents:
+    """Parse a whole ``.dfield`` file held in memory; raise ``FormatError`` on any violation of the spec."""
+    chunks, _ = _split_chunks(buf)
+    feat = chunks[b"FEAT"]
+    S = _feat_info(feat)["slices"]
+    header = _parse_header(bytes(chunks[b"HEAD"]))
+    _check_header(header, S)
+    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"])
+    features = _decode_features(feat)
+    _check_rows(mesh, features.shape[1])
+    return DfieldContents(header=header, mesh=mesh, features=features, mlp=_decode_mlp(chunks[b"MLPW"]))
+
+
+def _check_rows(mesh: Mesh, n_rows: int) -> None:
+    """The bank must have one row per feature of the mesh's layout (spec §6.3)."""
+    from ..field.layout import build_layout  # late: dfc.field pulls in torch, read_dfield_info needs none
+
+    try:
+        expected = build_layout(mesh).n_features
+    except MeshError as exc:
+        raise FormatError(f"MESH: no feature layout for the decoded mesh: {exc}") from None
+    if expected != n_rows:
+        raise FormatError(f"FEAT: {n_rows} feature rows, the mesh's layout has {expected}")
+
+
+def read_dfield(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES) -> DfieldContents:
+    """Read and fully check a ``.dfield`` file. Raises ``FormatError`` for any damaged or hostile content
+    (``OSError`` only when the file cannot be opened); files above ``max_bytes`` are refused unread."""
+    return decode_dfield(_read(path, max_bytes))
+
+
+def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES, with_mesh: bool = False) -> dict:
+    """Versions, header, bytes per chunk and the counts/encodings of every chunk, without decoding the
+    features or weights (framing, CRCs and the header are still checked).
+
+    Returns dict with keys container_version, content_version, file_bytes, chunks, header, mesh,
+    features, mlp; with ``with_mesh`` also ``decoded_mesh``, the ``Mesh`` (decoded and range-checked,
+    not run through ``Mesh.validate``).
+    """
+    buf = _read(path, max_bytes)
+    chunks, sizes = _split_chunks(buf)
+    feat = _feat_info(chunks[b"FEAT"])
+    header = _parse_header(bytes(chunks[b"HEAD"]))
+    _check_header(header, feat["slices"])
+    table = _mlp_table(chunks[b"MLPW"])
+    extra = {}
+    if with_mesh:
+        extra["decoded_mesh"] = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"],
+                                            full_validate=False)
+    return {
+        "container_version": list(_FILE_HEAD.unpack_from(buf)[1:3]),
+        "content_version": header["content_version"],
+        "file_bytes": len(buf),
+        "chunks": sizes,
+        "header": header,
+        "mesh": mesh_info(chunks[b"MESH"], chunks[b"TOPO"]),
+        "features": feat,
+        "mlp": {"tensors": {name: list(shape) for name, shape in table},
+                "parameters": sum(math.prod(s) for _, s in table)},
+        **extra,
+    }

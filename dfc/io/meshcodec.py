@@ -1,0 +1,466 @@
+"""Mesh encoding for ``.dfield`` files: the ``MESH`` and ``TOPO`` chunk payloads (spec/dfield.md §6.1–6.2).
+
+Vertices are quantised to an integer grid over the domain rectangle (``M = 2**bits - 1`` steps per axis, so
+border vertices stay exactly on the border) and the grid mesh is compressed with Draco's edgebreaker. Draco
+reorders vertices and faces, so the decoder puts the mesh in a canonical order (vertices by ``(qx, qy)``, faces
+rotated to start at their smallest index, then sorted); ``roundtrip_mesh`` returns that decoder view and the
+encoder fits on it. The raw encoding stores float64 vertices losslessly and keeps the order.
+
+Every function that reads bytes raises ``FormatError`` (and nothing else) on any inconsistency.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import DracoPy
+import numpy as np
+import zstandard
+
+from ..errors import FormatError, MeshError
+from ..geometry.mesh import Mesh
+from ..geometry.tolerances import tol
+
+__all__ = [
+    "DRACO",
+    "RAW",
+    "MAX_MESH_BITS",
+    "encode_mesh",
+    "decode_mesh",
+    "roundtrip_mesh",
+    "encode_roundtripped",
+    "mesh_info",
+    "check_mesh",
+    "compress",
+    "decompress",
+]
+
+DRACO, RAW = 0, 1
+MAX_MESH_BITS = 23
+"""Draco quantises ``value + 0.5`` in float32, exact for grid integers below 2**23."""
+MAX_VERTICES = 2**24
+MAX_TRIANGLES = 2**25
+MAX_DISC_EDGES = 2**25
+DRACO_LEVEL = 10
+
+_MESH_HEAD = struct.Struct("<BBHII")
+_TOPO_HEAD = struct.Struct("<IIIB3x")
+_CP_I32, _CP_F64 = 0, 1
+_MAX_WINDOW = 2**27
+_BARY_ONE = 2.0**24
+"""Barycentric control-point coordinates are stored as i32 multiples of 2**-24."""
+_BARY_LIMIT = 127.0
+
+
+# ----------------------------------------------------------------------------------------------- zstd
+def compress(data: bytes, level: int) -> bytes:
+    """One zstd frame declaring its content size (spec §1, ``Z(n)``)."""
+    return zstandard.ZstdCompressor(level=level, write_content_size=True).compress(data)
+
+
+def decompress(frame: bytes, size: int, chunk: str) -> bytes:
+    """Decode a ``Z(size)`` payload of chunk ``chunk``; ``FormatError`` unless it is exactly one frame of
+    declared content size ``size`` (checked before decompressing, so nothing larger is ever allocated)."""
+    try:
+        declared = zstandard.get_frame_parameters(frame).content_size
+    except zstandard.ZstdError:
+        raise FormatError(f"{chunk}: zstd frame header is corrupt") from None
+    if declared != size:
+        raise FormatError(f"{chunk}: zstd frame declares {declared} bytes, expected {size}")
+    try:
+        dctx = zstandard.ZstdDecompressor(max_window_size=_MAX_WINDOW)
+        out = dctx.decompress(frame, max_output_size=size)
+        # the one-shot call ignores trailing bytes; replay the (now known-good) frame to find them
+        obj = dctx.decompressobj()
+        obj.decompress(frame)
+        trailing = obj.unused_data
+    except zstandard.ZstdError as exc:
+        raise FormatError(f"{chunk}: zstd data is corrupt ({exc})") from None
+    if len(out) != size or trailing:
+        raise FormatError(f"{chunk}: zstd payload has the wrong size or bytes after its frame")
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+def _lerp(t: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Normalised-coordinate decoding (spec §1): (1 - t) * a + t * b in float64, exact at t = 0 and 1."""
+    t = np.asarray(t, dtype=np.float64)
+    return (1.0 - t) * a + t * b
+
+
+def _normalise(p: np.ndarray, domain) -> np.ndarray:
+    """Domain coordinates (..., 2) -> normalised (..., 2) float64, 0 at (x0, y0) and 1 at (x1, y1)."""
+    x0, y0, x1, y1 = domain
+    return (p - np.array([x0, y0])) / np.array([x1 - x0, y1 - y0])
+
+
+def _denormalise(t: np.ndarray, domain) -> np.ndarray:
+    x0, y0, x1, y1 = domain
+    return np.stack([_lerp(t[..., 0], x0, x1), _lerp(t[..., 1], y0, y1)], axis=-1)
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _inverse(perm: np.ndarray) -> np.ndarray:
+    inv = np.empty_like(perm)
+    inv[perm] = np.arange(len(perm), dtype=perm.dtype)
+    return inv
+
+
+def _canonical_faces(tri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotate each face (T, 3) to start at its smallest index, sort faces; return (faces, old -> new rank)."""
+    k = np.argmin(tri, axis=1)
+    rot = np.take_along_axis(tri, (k[:, None] + np.arange(3)) % 3, axis=1)
+    order = np.lexsort((rot[:, 2], rot[:, 1], rot[:, 0]))
+    return rot[order], _inverse(order)
+
+
+def _vertex_order(q: np.ndarray) -> np.ndarray | None:
+    """Canonical vertex order of grid points q (V, 2) int64, or None if two points coincide."""
+    order = np.lexsort((q[:, 1], q[:, 0]))
+    s = q[order]
+    if len(s) > 1 and np.any(np.all(s[1:] == s[:-1], axis=1)):
+        return None
+    return order
+
+
+def _varint(buf: bytes, pos: int) -> tuple[int, int]:
+    value = 0
+    for shift in range(0, 35, 7):
+        if pos >= len(buf):
+            raise FormatError("MESH: Draco header truncated")
+        byte = buf[pos]
+        pos += 1
+        value |= (byte & 0x7F) << shift
+        if not byte & 0x80:
+            return value, pos
+    raise FormatError("MESH: Draco header varint longer than 5 bytes")
+
+
+def _check_draco_header(blob: bytes, V: int, T: int) -> None:
+    """Spec §6.1: accept only Draco 2.2 edgebreaker meshes without metadata whose counts match V and T."""
+    if len(blob) < 12 or blob[:5] != b"DRACO":
+        raise FormatError("MESH: payload is not a Draco bitstream")
+    if blob[5:7] != b"\x02\x02" or blob[7] != 1 or blob[8] != 1 or blob[9:11] != b"\0\0" or blob[11] > 2:
+        raise FormatError("MESH: unsupported Draco version, type, method, flags or traversal")
+    nv, pos = _varint(blob, 12)
+    nf, _ = _varint(blob, pos)
+    if (nv, nf) != (V, T):
+        raise FormatError(f"MESH: Draco stream declares {nv} vertices / {nf} faces, chunk declares {V} / {T}")
+
+
+# ----------------------------------------------------------------------------------------------- encoding
+def _quantise(vertices: np.ndarray, domain, bits: int) -> np.ndarray:
+    M = 2**bits - 1
+    return np.clip(np.rint(_normalise(vertices, domain) * M), 0, M).astype(np.int64)
+
+
+def _encode_topology(mesh: Mesh, vmap: np.ndarray, tmap: np.ndarray, cp_format: int, level: int) -> bytes | None:
+    """TOPO chunk data, or None when a control point is not representable in ``cp_format``."""
+    E, C = len(mesh.disc_edges), len(mesh.curved_triangles)
+    deg = np.asarray(mesh.curve_degree, np.uint8)
+    cp = np.asarray(mesh.curve_control_points, np.float64)
+    parts = [
+        vmap[np.asarray(mesh.disc_edges, np.int64)].astype("<u4"),
+        np.asarray(mesh.disc_edge_piece).astype("<i4"),
+        tmap[np.asarray(mesh.curved_triangles, np.int64)].astype("<u4"),
+        vmap[np.asarray(mesh.curve_endpoints, np.int64)].astype("<u4"),
+        np.asarray(mesh.curve_piece).astype("<i4"),
+        deg,
+    ]
+    if cp_format == _CP_F64:
+        parts.append(cp[:, 1:3].astype("<f8"))
+    else:
+        # cubic: P1, P2; quadratic: Q from the elevated control points (mean of both estimates); each as
+        # barycentric (u, w) in its triangle, so the curve moves with the triangle when vertices are quantised
+        q = 0.25 * ((3.0 * cp[:, 1] - cp[:, 0]) + (3.0 * cp[:, 2] - cp[:, 3]))
+        inner = np.where((deg == 3)[:, None, None], cp[:, 1:3], q[:, None, :])
+        keep = np.ones((C, 2), bool)
+        keep[:, 1] = deg == 3
+        A, B, X = _curve_frame(mesh.vertices, mesh.triangles, mesh.curved_triangles, mesh.curve_endpoints)
+        rows = np.repeat(np.arange(C), 2).reshape(C, 2)[keep]
+        d, e, p = (B - A)[rows], (X - A)[rows], inner[keep] - A[rows]
+        with np.errstate(divide="ignore", invalid="ignore"):  # degenerate triangles fail validation later
+            det = _cross(d, e)
+            uw = np.stack([_cross(p, e) / det, _cross(d, p) / det], axis=-1)
+        if not np.all(np.abs(uw) < _BARY_LIMIT):  # also catches NaN from degenerate triangles
+            return None
+        parts.append(np.rint(uw * _BARY_ONE).astype("<i4"))
+    payload = b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
+    head = _TOPO_HEAD.pack(E, C, int(np.count_nonzero(deg == 3)), cp_format)
+    return head + compress(payload, level)
+
+
+def _curve_frame(vertices, triangles, curved_triangles, endpoints):
+    """Endpoints A, B and apex X (the third corner), each (C, 2) float64, of every curved triangle."""
+    tri = np.asarray(triangles, np.int64)[np.asarray(curved_triangles, np.int64)]
+    ends = np.asarray(endpoints, np.int64)
+    apex = tri.sum(axis=1) - ends.sum(axis=1)
+    v = np.asarray(vertices, np.float64)
+    return v[ends[:, 0]], v[ends[:, 1]], v[apex]
+
+
+def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19) -> tuple[bytes, bytes] | None:
+    """Encode ``mesh`` as (MESH, TOPO) chunk data with one fixed encoding, no fallback.
+
+    Parameters
+    ----------
+    mesh : Mesh
+    bits : int in 1..23 for Draco-quantised vertices, or None for the lossless raw encoding
+    level : zstd level of the TOPO (and raw MESH) payloads
+
+    Returns
+    -------
+    (mesh_data, topo_data) bytes, or None when ``bits`` puts two vertices on one grid point or a control
+    point is too far from its triangle for the fixed-point barycentric format.
+    """
+    V, T = mesh.n_vertices, mesh.n_triangles
+    tri = np.asarray(mesh.triangles, np.int64)
+    if bits is None:
+        raw = np.asarray(mesh.vertices, "<f8").tobytes() + tri.astype("<u4").tobytes()
+        mesh_data = _MESH_HEAD.pack(RAW, 0, 0, V, T) + compress(raw, level)
+        ident_v, ident_t = np.arange(V), np.arange(T)
+        return mesh_data, _encode_topology(mesh, ident_v, ident_t, _CP_F64, level)
+    if not 1 <= bits <= MAX_MESH_BITS:
+        raise ValueError(f"mesh bits must be in 1..{MAX_MESH_BITS}, got {bits}")
+    q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
+    order = _vertex_order(q)
+    if order is None:
+        return None
+    vmap = _inverse(order)
+    faces, tmap = _canonical_faces(vmap[tri])
+    points = np.zeros((V, 3), np.float32)
+    points[:, :2] = q[order]
+    M = 2**bits - 1
+    blob = DracoPy.encode(
+        points, faces.astype(np.uint32), quantization_bits=bits, quantization_range=float(M),
+        quantization_origin=[0.0, 0.0, 0.0], compression_level=DRACO_LEVEL, preserve_order=False,
+    )
+    topo_data = _encode_topology(mesh, vmap, tmap, _CP_I32, level)
+    return None if topo_data is None else (_MESH_HEAD.pack(DRACO, bits, 0, V, T) + blob, topo_data)
+
+
+# ----------------------------------------------------------------------------------------------- decoding
+def mesh_info(mesh_data: bytes, topo_data: bytes) -> dict:
+    """Counts and encodings from the fixed-size prefixes of MESH and TOPO chunk data (nothing decoded)."""
+    if len(mesh_data) < _MESH_HEAD.size or len(topo_data) < _TOPO_HEAD.size:
+        raise FormatError("MESH/TOPO: chunk shorter than its fixed fields")
+    enc, bits, reserved, V, T = _MESH_HEAD.unpack_from(mesh_data)
+    E, C, C3, cp_format = _TOPO_HEAD.unpack_from(topo_data)
+    if reserved or topo_data[13:16] != b"\0\0\0":
+        raise FormatError("MESH/TOPO: reserved field is not zero")
+    if enc == DRACO and not 1 <= bits <= MAX_MESH_BITS or enc == RAW and bits != 0 or enc not in (DRACO, RAW):
+        raise FormatError(f"MESH: invalid encoding {enc} with {bits} bits")
+    if not (3 <= V <= MAX_VERTICES and 1 <= T <= MAX_TRIANGLES):
+        raise FormatError(f"MESH: {V} vertices / {T} triangles outside the limits")
+    if E > MAX_DISC_EDGES or C > T or C3 > C or cp_format not in (_CP_I32, _CP_F64):
+        raise FormatError(f"TOPO: invalid counts E={E} C={C} C3={C3} or control-point format {cp_format}")
+    return {"encoding": "draco" if enc == DRACO else "raw", "bits": bits, "vertices": V, "triangles": T,
+            "disc_edges": E, "curves": C, "cubic_curves": C3,
+            "control_points": "i32-barycentric" if cp_format == _CP_I32 else "f64"}
+
+
+def _decode_draco(blob: bytes, V: int, T: int, bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """Draco payload -> canonical grid points (V, 2) int64 and faces (T, 3) int64."""
+    _check_draco_header(blob, V, T)
+    try:
+        decoded = DracoPy.decode(blob)
+        points = np.asarray(decoded.points)
+        faces = np.asarray(decoded.faces)
+    except Exception as exc:  # DracoPy raises its own exception types on corrupt input
+        raise FormatError(f"MESH: Draco decoding failed ({type(exc).__name__})") from None
+    if points.shape != (V, 3) or faces.shape != (T, 3):
+        raise FormatError(f"MESH: Draco decoded {points.shape} points / {faces.shape} faces, expected {V} / {T}")
+    M = 2**bits - 1
+    points = points.astype(np.float64)
+    if not (np.all(np.isfinite(points)) and np.all(points == np.rint(points)) and np.all(points[:, 2] == 0)
+            and points[:, :2].min() >= 0 and points[:, :2].max() <= M):
+        raise FormatError(f"MESH: Draco points are not integers in [0, {M}] with z = 0")
+    faces = faces.astype(np.int64)
+    if faces.size and (faces.min() < 0 or faces.max() >= V):
+        raise FormatError("MESH: Draco face index out of range")
+    q = points[:, :2].astype(np.int64)
+    order = _vertex_order(q)
+    if order is None:
+        raise FormatError("MESH: two vertices coincide")
+    faces, _ = _canonical_faces(_inverse(order)[faces])
+    return q[order], faces
+
+
+def check_mesh(vertices: np.ndarray, triangles: np.ndarray, domain) -> None:
+    """Cheap exact checks of spec §6.1 on decoded (V, 2) float64 vertices and (T, 3) int64 faces."""
+    x0, y0, x1, y1 = domain
+    V = len(vertices)
+    if not np.all(np.isfinite(vertices)):
+        raise FormatError("MESH: non-finite vertex coordinate")
+    x, y = vertices[:, 0], vertices[:, 1]
+    if x.min() < x0 or x.max() > x1 or y.min() < y0 or y.max() > y1:
+        raise FormatError("MESH: vertex outside the domain")
+    if triangles.min() < 0 or triangles.max() >= V:
+        raise FormatError("MESH: triangle index out of range")
+    a, b, c = (triangles[:, i] for i in range(3))
+    if np.any((a == b) | (b == c) | (c == a)):
+        raise FormatError("MESH: triangle with a repeated vertex")
+    p = vertices[triangles]
+    cross = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    if not np.all(cross > 0):
+        raise FormatError("MESH: triangle not counter-clockwise with positive area")
+    directed = np.stack([triangles, np.roll(triangles, -1, axis=1)], axis=-1).reshape(-1, 2)
+    key = directed[:, 0] * V + directed[:, 1]
+    if len(np.unique(key)) != len(key):
+        raise FormatError("MESH: a directed edge is used twice (overlapping or flipped triangles)")
+    boundary = directed[~np.isin(directed[:, 1] * V + directed[:, 0], key)]
+    e = vertices[boundary]
+    on_side = ((e[:, 0, 0] == x0) & (e[:, 1, 0] == x0)) | ((e[:, 0, 0] == x1) & (e[:, 1, 0] == x1)) | \
+              ((e[:, 0, 1] == y0) & (e[:, 1, 1] == y0)) | ((e[:, 0, 1] == y1) & (e[:, 1, 1] == y1))
+    if not np.all(on_side):
+        raise FormatError("MESH: a boundary edge is not on the domain border (hole)")
+    area = (x1 - x0) * (y1 - y0)
+    if abs(0.5 * cross.sum() - area) > tol.area_rel * area:
+        raise FormatError("MESH: triangle areas do not sum to the domain area")
+    if len(np.unique(triangles)) != V:
+        raise FormatError("MESH: a vertex is used by no triangle")
+
+
+def _decode_topology(topo: bytes, info: dict, vertices: np.ndarray, triangles: np.ndarray, domain):
+    E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
+    f64 = info["control_points"] == "f64"
+    n = 12 * E + 17 * C + (32 * C if f64 else 8 * (C + C3))
+    raw = decompress(topo[_TOPO_HEAD.size:], n, "TOPO")
+    offs = np.cumsum([0, 8 * E, 4 * E, 4 * C, 8 * C, 4 * C, C])
+    edges = np.frombuffer(raw, "<u4", 2 * E, offs[0]).reshape(E, 2).astype(np.int64)
+    edge_piece = np.frombuffer(raw, "<i4", E, offs[1]).astype(np.int64)
+    ctri = np.frombuffer(raw, "<u4", C, offs[2]).astype(np.int64)
+    ends = np.frombuffer(raw, "<u4", 2 * C, offs[3]).reshape(C, 2).astype(np.int64)
+    curve_piece = np.frombuffer(raw, "<i4", C, offs[4]).astype(np.int64)
+    deg = np.frombuffer(raw, np.uint8, C, offs[5]).astype(np.int8)
+    V, T = len(vertices), len(triangles)
+    if E and (edges.max() >= V or np.any(edges[:, 0] == edges[:, 1])):
+        raise FormatError("TOPO: discontinuous edge with an invalid or repeated vertex")
+    if E:
+        und = np.sort(np.stack([triangles, np.roll(triangles, -1, axis=1)], -1).reshape(-1, 2), axis=1)
+        es = np.sort(edges, axis=1)
+        if not np.all(np.isin(es[:, 0] * V + es[:, 1], und[:, 0] * V + und[:, 1])):
+            raise FormatError("TOPO: a discontinuous edge is not a mesh edge")
+        if len(np.unique(es[:, 0] * V + es[:, 1])) != E:
+            raise FormatError("TOPO: a discontinuous edge is listed twice")
+    if np.any(edge_piece < -1) or np.any(curve_piece < -1):
+        raise FormatError("TOPO: piece id below -1")
+    if C and (ctri.max() >= T or len(np.unique(ctri)) != C):
+        raise FormatError("TOPO: curved triangle index out of range or repeated")
+    if C and (ends.max() >= V or np.any(ends[:, 0] == ends[:, 1])
+              or not np.all(np.any(triangles[ctri][:, :, None] == ends[:, None, :], axis=1))):
+        raise FormatError("TOPO: curve endpoints are not two distinct corners of their triangle")
+    if np.any((deg != 2) & (deg != 3)) or np.count_nonzero(deg == 3) != C3:
+        raise FormatError("TOPO: curve degree not in {2, 3} or cubic count mismatch")
+    A, B = vertices[ends[:, 0]], vertices[ends[:, 1]]
+    if f64:
+        inner = np.frombuffer(raw, "<f8", 4 * C, offs[6]).reshape(C, 2, 2).astype(np.float64)
+    else:
+        uw = np.frombuffer(raw, "<i4", 2 * (C + C3), offs[6]).reshape(-1, 2) / _BARY_ONE
+        cubic = deg == 3
+        rows = np.repeat(np.arange(C), np.where(cubic, 2, 1))
+        _, _, X = _curve_frame(vertices, triangles, ctri, ends)
+        with np.errstate(over="ignore", invalid="ignore"):
+            pts = A[rows] + uw[:, :1] * (B - A)[rows] + uw[:, 1:] * (X - A)[rows]
+            first = np.cumsum(np.where(cubic, 2, 1)) - np.where(cubic, 2, 1)
+            inner = np.empty((C, 2, 2))
+            inner[cubic, 0], inner[cubic, 1] = pts[first[cubic]], pts[first[cubic] + 1]
+            two_q = 2.0 * pts[first[~cubic]]
+            inner[~cubic, 0], inner[~cubic, 1] = (A[~cubic] + two_q) / 3.0, (two_q + B[~cubic]) / 3.0
+    if not np.all(np.isfinite(inner)):
+        raise FormatError("TOPO: non-finite control point")
+    cp = np.concatenate([A[:, None], inner, B[:, None]], axis=1)
+    return edges, edge_piece, ctri, ends, cp, deg, curve_piece
+
+
+def decode_mesh(mesh_data: bytes, topo_data: bytes, domain, *, full_validate: bool = True) -> Mesh:
+    """Decode MESH and TOPO chunk data into the canonical ``Mesh``; raise ``FormatError`` on any violation.
+
+    ``domain`` is (x0, y0, x1, y1) from the header. ``full_validate`` also runs ``Mesh.validate``.
+    """
+    info = mesh_info(mesh_data, topo_data)
+    V, T, bits = info["vertices"], info["triangles"], info["bits"]
+    payload = mesh_data[_MESH_HEAD.size:]
+    if info["encoding"] == "draco":
+        q, triangles = _decode_draco(payload, V, T, bits)
+        vertices = _denormalise(q / float(2**bits - 1), domain)
+    else:
+        raw = decompress(payload, 16 * V + 12 * T, "MESH")
+        vertices = np.frombuffer(raw, "<f8", 2 * V).reshape(V, 2).astype(np.float64)
+        triangles = np.frombuffer(raw, "<u4", 3 * T, 16 * V).reshape(T, 3).astype(np.int64)
+    check_mesh(vertices, triangles, domain)
+    edges, edge_piece, ctri, ends, cp, deg, curve_piece = _decode_topology(topo_data, info, vertices,
+                                                                           triangles, domain)
+    mesh = Mesh(domain=tuple(float(v) for v in domain), vertices=vertices, triangles=triangles,
+                disc_edges=edges, curved_triangles=ctri, curve_endpoints=ends, curve_control_points=cp,
+                curve_degree=deg, disc_edge_piece=edge_piece, curve_piece=curve_piece)
+    if full_validate:
+        try:
+            mesh.validate()
+        except MeshError as exc:
+            raise FormatError(f"MESH: decoded mesh is invalid: {exc}") from None
+    return mesh
+
+
+# ----------------------------------------------------------------------------------------------- ladder
+def _ladder(bits: int) -> list[int | None]:
+    if not 1 <= bits <= MAX_MESH_BITS:
+        raise ValueError(f"mesh bits must be in 1..{MAX_MESH_BITS}, got {bits}")
+    return [*range(bits, MAX_MESH_BITS + 1, 2), None]
+
+
+def _same(a: Mesh, b: Mesh) -> bool:
+    fields = ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints",
+              "curve_control_points", "disc_edge_piece", "curve_piece")
+    return tuple(a.domain) == tuple(b.domain) and all(
+        np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f))) for f in fields
+    ) and np.array_equal(np.asarray(a.curve_degree, np.int64), np.asarray(b.curve_degree, np.int64))
+
+
+def _try(mesh: Mesh, step: int | None, level: int) -> tuple[tuple[bytes, bytes], Mesh] | None:
+    enc = encode_mesh(mesh, step, level=level)
+    if enc is None:
+        return None
+    try:
+        return enc, decode_mesh(*enc, mesh.domain)
+    except FormatError:
+        return None
+
+
+def roundtrip_mesh(mesh: Mesh, bits: int) -> Mesh:
+    """The mesh exactly as a decoder of a file written from it sees it (Draco with ``bits`` if valid).
+
+    Tries Draco with ``bits, bits + 2, ... <= 23`` and then the lossless raw encoding, returning the first
+    decoded mesh that passes every check (spec §6.1, ``Mesh.validate``). Raises ``MeshError`` if even the
+    raw encoding fails, i.e. ``mesh`` itself is invalid.
+    """
+    for step in _ladder(bits):
+        res = _try(mesh, step, level=1)
+        if res is not None:
+            return res[1]
+    raise MeshError("mesh cannot be stored: it fails validation even when stored losslessly")
+
+
+def _on_grid(mesh: Mesh, bits: int) -> bool:
+    """Whether every vertex is exactly a ``bits`` grid point (as a Draco decode at ``bits`` produces)."""
+    q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
+    return np.array_equal(_denormalise(q / float(2**bits - 1), mesh.domain), mesh.vertices)
+
+
+def encode_roundtripped(mesh: Mesh, *, level: int = 19) -> tuple[bytes, bytes]:
+    """(MESH, TOPO) chunk data that decode to ``mesh`` bit for bit, order included.
+
+    ``mesh`` should be ``roundtrip_mesh(m, bits)``: the file then reproduces exactly the geometry and order
+    the features were fitted on. Tries, smallest first, the Draco precisions whose grid holds every vertex
+    exactly (grids nest: 10 bits lie on the 20-bit grid) and takes the first under which ``mesh`` decodes to
+    itself; any other valid mesh is stored with the lossless raw encoding. Raises ``MeshError`` when
+    ``mesh`` is invalid.
+    """
+    for step in [b for b in range(1, MAX_MESH_BITS + 1) if _on_grid(mesh, b)] + [None]:
+        res = _try(mesh, step, level)
+        if res is not None and _same(res[1], mesh):
+            return res[0]
+    raise MeshError("mesh cannot be stored: it is invalid (see Mesh.validate)")

@@ -1,0 +1,112 @@
+"""Analytic scenes: the registry, exact jumps of one across strokes, continuity away from the curves."""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dfc.bench.scenes import (
+    FLATTEN,
+    HDR_GAIN,
+    SCENES,
+    default_probes,
+    get_scene,
+    sample_scene,
+    shapes_scene,
+    strokes_scene,
+)
+from dfc.errors import InputError
+from dfc.geometry.bezier import evaluate
+
+DELTA = 1e-6
+"""Half the gap between the two points compared across a line (domain units of a 256-wide scene)."""
+
+STROKES = strokes_scene()
+
+
+def _across(p: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(2, 2): p ± DELTA times the unit normal of ``direction``."""
+    n = np.array([-direction[1], direction[0]]) / np.linalg.norm(direction)
+    return np.stack([p - DELTA * n, p + DELTA * n])
+
+
+def _points(cp: np.ndarray, n: int) -> np.ndarray:
+    """(P · n, 2) points of the pieces cp (P, 4, 2) at n evenly spaced parameters."""
+    return evaluate(cp, np.tile(np.linspace(0, 1, n), (len(cp), 1))).reshape(-1, 2)
+
+
+def test_registry_holds_every_scene():
+    assert {"sample", "shapes", "strokes", "hdr"} <= set(SCENES)
+    assert SCENES["sample"] is sample_scene
+    for name in SCENES:
+        scene = get_scene(name)
+        x0, y0, x1, y1 = scene.domain
+        xy = np.random.default_rng(0).random((200, 2)) * [x1 - x0, y1 - y0] + [x0, y0]
+        v = scene.value(xy)
+        assert scene.name == name and v.shape == (200, len(scene.channels)) and np.isfinite(v).all()
+        assert len(scene.curves) > 0
+
+
+def test_unknown_scene_names_the_known_ones():
+    with pytest.raises(InputError, match="shapes"):
+        get_scene("nope")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, len(STROKES.curves) - 1), st.integers(0, FLATTEN - 1), st.floats(0.05, 0.95))
+def test_strokes_jump_by_exactly_one_across_a_stroke(piece, k, s):
+    """The discontinuity is the flattened polyline: cross it between two of its vertices."""
+    cp = STROKES.curves.control_points[piece]
+    n = 1 if STROKES.curves.degree[piece] == 1 else FLATTEN
+    a, b = evaluate(cp[None], np.array([[k % n / n, (k % n + 1) / n]]))[0]
+    v = STROKES.value(_across(a + s * (b - a), b - a))[:, 0]
+    assert abs(abs(v[1] - v[0]) - 1.0) < 1e-4
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0, 256), st.floats(0, 256), st.floats(0, 2 * np.pi))
+def test_strokes_are_continuous_away_from_the_strokes(x, y, angle):
+    p = np.array([x, y])
+    cp = STROKES.curves.control_points
+    curve_pts = _points(cp, 2001)
+    if np.min(np.linalg.norm(curve_pts - p, axis=1)) < 1.0:
+        return  # too close to a stroke to tell a jump from a steep slope
+    v = STROKES.value(_across(p, np.array([np.cos(angle), np.sin(angle)])))[:, 0]
+    assert abs(v[1] - v[0]) < 1e-4
+
+
+def test_strokes_are_continuous_past_a_tip():
+    """Beyond an open end the value has no jump: crossing the stroke's extension changes nothing."""
+    cp = STROKES.curves.control_points[0]
+    tip, tangent = cp[0], cp[0] - cp[1]
+    for dist in (0.5, 5.0, 20.0):
+        p = tip + dist * tangent / np.linalg.norm(tangent)
+        v = STROKES.value(_across(p, tangent))[:, 0]
+        assert abs(v[1] - v[0]) < 1e-4
+
+
+def test_shapes_jump_across_a_polygon_edge_and_not_across_a_free_line():
+    scene = shapes_scene()
+    star = scene.curves.control_points[scene.curves.curve == scene.curves.names.index("star")]
+    a, b = star[0, 0], star[0, 3]
+    v = scene.value(_across((a + b) / 2, b - a))
+    assert np.abs(v[1] - v[0]).max() > 0.05
+    w = scene.value(_across(np.array([10.0, 250.0]), np.array([1.0, 0.3])))  # background only
+    assert np.abs(w[1] - w[0]).max() < 1e-4
+
+
+def test_hdr_is_shapes_with_gains():
+    xy = np.random.default_rng(1).random((2000, 2)) * 256
+    ratio = get_scene("hdr").value(xy) / shapes_scene().value(xy)
+    assert set(np.round(np.unique(ratio), 6)) <= set(HDR_GAIN.values())
+    assert get_scene("hdr").value(xy).max() > 10.0
+
+
+@pytest.mark.parametrize("name", sorted(SCENES))
+def test_default_probes_lie_on_a_discontinuity(name):
+    scene = get_scene(name)
+    probes = default_probes(scene)
+    assert probes.shape == (2, 2)
+    pts = _points(scene.curves.control_points, 4001)
+    for p in probes:
+        assert np.min(np.linalg.norm(pts - p, axis=1)) < 1e-9

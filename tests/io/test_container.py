@@ -1,0 +1,329 @@
+"""The .dfield reader/writer: round trip, info, atomic writes, and a fuzzer that every damaged or hostile
+file must meet with exactly one FormatError (or, for mutations that keep the file valid, a valid result)."""
+
+import json
+import struct
+import tracemalloc
+import zlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dfc.errors import FormatError, MeshError
+from dfc.field.layout import build_layout
+from dfc.io.container import (
+    DfieldContents,
+    decode_dfield,
+    encode_dfield,
+    read_dfield,
+    read_dfield_info,
+    write_dfield,
+)
+from dfc.io.meshcodec import compress, roundtrip_mesh
+
+from .test_meshcodec import make_mesh
+
+GOLDEN = Path(__file__).parents[1] / "golden"
+
+
+def make_contents(S=1, K=5, seed=0, **mesh_kw) -> DfieldContents:
+    rng = np.random.default_rng(seed)
+    mesh = roundtrip_mesh(make_mesh(seed=seed, **mesh_kw), 16)
+    N = build_layout(mesh).n_features
+    features = (rng.normal(size=(S, N, K)) * [0.1, 1, 2, 0.01, 5][:K]).astype(np.float32)
+    mlp = {"layers.0.weight": rng.normal(size=(16, K)).astype(np.float32), "layers.0.bias": rng.normal(size=16).astype(np.float32),
+           "layers.1.weight": rng.normal(size=(3, 16)).astype(np.float32), "layers.1.bias": np.zeros(3, np.float32)}
+    header = {"domain": list(mesh.domain), "channels": ["r", "g", "b"], "value_transform": "identity",
+              "times": None if S == 1 else [0.5 * i for i in range(S)],
+              "model": {"dim": K, "hidden": 16, "layers": 1, "activation": "relu", "oneblob_bins": 0},
+              "encoder": {"steps": 10, "seed": seed, "source": "test"}}
+    return DfieldContents(header=header, mesh=mesh, features=features, mlp=mlp)
+
+
+@pytest.fixture(scope="module")
+def contents():
+    return make_contents()
+
+
+@pytest.fixture(scope="module")
+def blob(contents):
+    return encode_dfield(contents)[0]
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+def split(data: bytes) -> list[list]:
+    """[type, data] per chunk (test-side parser of a known-good file)."""
+    out, pos = [], 16
+    while pos < len(data):
+        (n,) = struct.unpack_from("<I", data, pos)
+        out.append([data[pos + 4:pos + 8], data[pos + 8:pos + 8 + n]])
+        pos += 12 + n + (-n % 4)
+    return out
+
+
+def join(chunks, crc=True) -> bytes:
+    """Re-frame chunks with correct padding, CRCs (unless crc=False) and file length: a hostile but
+    well-framed file."""
+    body = b"".join(struct.pack("<I", len(d)) + t + d + b"\0" * (-len(d) % 4)
+                    + struct.pack("<I", zlib.crc32(t + d) if crc else 0) for t, d in chunks)
+    return b"\x89DFL\r\n\x1a\n" + struct.pack("<HHI", 1, 0, 16 + len(body)) + body
+
+
+def boundaries(data: bytes) -> list[int]:
+    pos, out = 16, [0, 8, 12, 16]
+    while pos < len(data):
+        (n,) = struct.unpack_from("<I", data, pos)
+        out += [pos + 4, pos + 8, pos + 8 + n, pos + 8 + n + (-n % 4)]
+        pos += 12 + n + (-n % 4)
+        out.append(pos)
+    return out
+
+
+def outcome(data: bytes) -> str:
+    """'refused' for one FormatError, 'valid' for a fully valid result; anything else propagates."""
+    try:
+        c = decode_dfield(data)
+    except FormatError as exc:
+        assert "\n" not in str(exc)
+        return "refused"
+    c.mesh.validate()
+    assert np.all(np.isfinite(c.features)) and c.features.ndim == 3
+    return "valid"
+
+
+def with_header(blob, header: bytes | dict, level=3) -> bytes:
+    text = header if isinstance(header, bytes) else json.dumps(header).encode()
+    ch = split(blob)
+    ch[0][1] = compress(text, level)
+    return join(ch)
+
+
+# ----------------------------------------------------------------------------------------------- round trip
+def test_round_trip(tmp_path, contents):
+    path = tmp_path / "f.dfield"
+    sizes = write_dfield(path, contents)
+    assert sum(sizes.values()) + 16 == path.stat().st_size
+    out = read_dfield(path)
+    _, scale, _ = __import__("dfc.field.quantize", fromlist=["x"]).quantize_features(contents.features, 8)
+    assert out.features.dtype == np.float32 and out.features.shape == contents.features.shape
+    assert np.all(np.abs(out.features - contents.features) <= scale / 2 * (1 + 1e-5) + 1e-7)
+    assert out.mlp.keys() == contents.mlp.keys()
+    for k, w in contents.mlp.items():
+        assert out.mlp[k].dtype == np.float32 and np.array_equal(out.mlp[k], w.astype(np.float16).astype(np.float32))
+    for f in ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points",
+              "curve_degree", "disc_edge_piece", "curve_piece"):
+        assert np.array_equal(getattr(out.mesh, f), getattr(contents.mesh, f)), f
+    assert out.mesh.domain == contents.mesh.domain
+    assert {k: v for k, v in out.header.items() if k not in ("format", "content_version")} == contents.header
+    assert out.header["content_version"] == [1, 0]
+
+
+@pytest.mark.parametrize("bits", [1, 4, 12, 16])
+def test_feature_bits(bits, contents):
+    out = decode_dfield(encode_dfield(contents, feature_bits=bits)[0])
+    span = contents.features.max(axis=(0, 1)) - contents.features.min(axis=(0, 1))
+    assert np.all(np.abs(out.features - contents.features) <= span / (2**bits - 1) / 2 * (1 + 1e-4) + 1e-6)
+
+
+def test_time_axis():
+    c = make_contents(S=3)
+    out = decode_dfield(encode_dfield(c)[0])
+    assert out.features.shape[0] == 3 and out.header["times"] == [0.0, 0.5, 1.0]
+    c.header["times"] = [0.0, 0.0, 1.0]
+    with pytest.raises(FormatError, match="strictly increasing"):
+        encode_dfield(c)
+    c.header["times"] = None
+    with pytest.raises(FormatError, match="slices"):
+        encode_dfield(c)
+
+
+def test_info_reads_counts_without_decoding(tmp_path, contents):
+    path = tmp_path / "f.dfield"
+    sizes = write_dfield(path, contents, feature_bits=10)
+    info = read_dfield_info(path)
+    assert info["chunks"] == sizes and info["container_version"] == [1, 0] and info["content_version"] == [1, 0]
+    assert info["mesh"]["vertices"] == contents.mesh.n_vertices and info["mesh"]["bits"] == 16
+    assert info["features"] == {"slices": 1, "rows": contents.features.shape[1], "width": 5, "bits": 10}
+    assert info["mlp"]["parameters"] == sum(w.size for w in contents.mlp.values())
+    assert info["header"]["channels"] == ["r", "g", "b"]
+
+
+def test_writing_is_deterministic_and_atomic(tmp_path, contents):
+    a, b = encode_dfield(contents)[0], encode_dfield(contents)[0]
+    assert a == b
+    path = tmp_path / "f.dfield"
+    path.write_bytes(b"old")
+    bad = DfieldContents(contents.header, contents.mesh, contents.features, {"bad name!": np.zeros(2)})
+    with pytest.raises(FormatError):
+        write_dfield(path, bad)
+    assert path.read_bytes() == b"old" and [p.name for p in tmp_path.iterdir()] == ["f.dfield"]
+    with pytest.raises(OSError):
+        write_dfield(tmp_path / "missing" / "f.dfield", contents)
+
+
+def test_writer_checks_its_inputs(contents):
+    for mlp in ({"w": np.full(2, 1e6, np.float32)}, {}):
+        with pytest.raises(FormatError):
+            encode_dfield(DfieldContents(contents.header, contents.mesh, contents.features, mlp))
+    with pytest.raises(FormatError, match="domain"):
+        encode_dfield(DfieldContents({**contents.header, "domain": [0, 0, 1, 1]}, contents.mesh, contents.features, contents.mlp))
+    with pytest.raises(FormatError, match="finite"):
+        encode_dfield(DfieldContents(contents.header, contents.mesh, contents.features * np.nan, contents.mlp))
+    bad = make_mesh()
+    bad.triangles = bad.triangles[:, [0, 2, 1]]
+    with pytest.raises(MeshError):
+        encode_dfield(DfieldContents(contents.header, bad, contents.features, contents.mlp))
+
+
+def test_wrong_feature_row_count_is_refused(contents):
+    c = DfieldContents(contents.header, contents.mesh, contents.features[:, :-1], contents.mlp)
+    with pytest.raises(FormatError, match="feature rows"):
+        decode_dfield(encode_dfield(c)[0])
+
+
+def test_max_bytes(tmp_path, contents):
+    path = tmp_path / "f.dfield"
+    write_dfield(path, contents)
+    with pytest.raises(FormatError, match="exceeds"):
+        read_dfield(path, max_bytes=100)
+
+
+# ----------------------------------------------------------------------------------------------- fuzzing
+def test_truncation_everywhere_is_refused(blob):
+    cuts = set(boundaries(blob)) | set(range(0, len(blob), 7))
+    for n in sorted(cuts - {len(blob)}):
+        with pytest.raises(FormatError):
+            decode_dfield(blob[:n])
+
+
+def test_random_bit_flips_and_overwrites_are_refused(blob):
+    rng = np.random.default_rng(0)
+    for i in range(2000):
+        b = bytearray(blob)
+        for _ in range(int(rng.integers(1, 4))):
+            pos = int(rng.integers(len(b)))
+            if i % 2:
+                b[pos] ^= 1 << int(rng.integers(8))
+            else:
+                b[pos] = (b[pos] + int(rng.integers(1, 256))) % 256
+        changed = {i for i in range(len(b)) if b[i] != blob[i]}
+        # only the minor container version may change and keep the file valid
+        assert outcome(bytes(b)) == ("valid" if changed <= {10, 11} else "refused")
+
+
+def test_hostile_chunk_data_with_valid_crcs(blob):
+    """Overwrite bytes inside each chunk's data and re-frame with correct CRCs: the decoder's own checks
+    must catch everything (or the result must be valid)."""
+    rng = np.random.default_rng(1)
+    chunks = split(blob)
+    seen = {"refused": 0, "valid": 0}
+    for i in range(1500):
+        ch = [list(c) for c in chunks]
+        k = i % 5
+        d = bytearray(ch[k][1])
+        for _ in range(int(rng.integers(1, 4))):
+            pos = int(rng.integers(min(len(d), 64))) if rng.random() < 0.5 else int(rng.integers(len(d)))
+            d[pos] = int(rng.integers(256))
+        ch[k][1] = bytes(d)
+        seen[outcome(join(ch))] += 1
+    assert seen["refused"] > 1000
+
+
+@pytest.mark.parametrize("value", [0xFFFFFFFF, 2**30, 2**30 - 1, 2**24 + 1, 2**20])
+def test_huge_counts_are_refused_without_allocating(blob, value):
+    """Every u32 count in every chunk's fixed fields, set huge (CRC fixed): refused, small peak memory."""
+    chunks = split(blob)
+    tracemalloc.start()
+    for k, offsets in ((1, [4, 8]), (2, [0, 4, 8]), (3, [0, 4]), (4, [0, 4, 68, 72])):
+        for off in offsets:
+            ch = [list(c) for c in chunks]
+            d = bytearray(ch[k][1])
+            d[off:off + 4] = struct.pack("<I", value)
+            ch[k][1] = bytes(d)
+            with pytest.raises(FormatError):
+                decode_dfield(join(ch))
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 20 * len(blob) + 2**22
+
+
+@pytest.mark.parametrize("value", [0xFFFFFFFF, 2**30, 12345])
+def test_huge_chunk_lengths_are_refused(blob, value):
+    for pos in boundaries(blob)[4::5]:  # each chunk's length field
+        if pos + 4 <= len(blob):
+            b = bytearray(blob)
+            b[pos:pos + 4] = struct.pack("<I", value)
+            with pytest.raises(FormatError):
+                decode_dfield(bytes(b))
+
+
+def test_chunk_order_rules(blob):
+    ch = split(blob)
+    assert outcome(join(ch)) == "valid"
+    anc = [b"xTRA", b"some ancillary data"]
+    assert outcome(join(ch[:3] + [anc] + ch[3:])) == "valid"
+    assert outcome(join(ch[:-1] + [[b"xTRa", b""]] + ch[-1:])) == "valid"  # reserved bit set, ancillary
+    bad = {
+        "unknown critical": ch[:3] + [[b"XTRA", b"x"]] + ch[3:],
+        "ancillary before HEAD": [anc] + ch,
+        "duplicate": ch[:2] + ch[1:],
+        "swapped": [ch[0], ch[2], ch[1]] + ch[3:],
+        "missing": ch[:3] + ch[4:],
+        "after DEND": ch + [anc],
+        "DEND not empty": ch[:-1] + [[b"DEND", b"x"]],
+        "bad type": ch[:3] + [[b"x1RA", b""]] + ch[3:],
+    }
+    for name, chunks in bad.items():
+        with pytest.raises(FormatError):
+            decode_dfield(join(chunks))
+    with pytest.raises(FormatError, match="CRC"):
+        decode_dfield(join(ch[:3] + [anc] + ch[3:], crc=False))
+
+
+def test_file_header_rules(blob):
+    for pos, value in ((0, b"\x88"), (8, b"\x02\x00"), (12, struct.pack("<I", len(blob) + 4))):
+        b = bytearray(blob)
+        b[pos:pos + len(value)] = value
+        with pytest.raises(FormatError):
+            decode_dfield(bytes(b))
+    assert outcome(blob[:10] + b"\x07\x00" + blob[12:]) == "valid"  # newer minor container version
+    ch = split(blob)
+    ch.insert(1, [b"xTRA", b"abcde"])  # 5 data bytes, 3 padding bytes
+    b = bytearray(join(ch))
+    b[16 + 12 + len(ch[0][1]) + (-len(ch[0][1]) % 4) + 8 + 5] = 1
+    with pytest.raises(FormatError, match="padding"):
+        decode_dfield(bytes(b))
+
+
+def test_hostile_headers(blob, contents):
+    base = decode_dfield(blob).header
+    bad = [
+        {**base, "format": "png"}, {**base, "content_version": [2, 0]}, {**base, "domain": [0, 0, 0, 1]},
+        {**base, "channels": []}, {**base, "channels": ["a", "a"]}, {**base, "value_transform": "sqrt"},
+        {**base, "times": [1.0, 2.0]}, {**base, "model": []}, {k: v for k, v in base.items() if k != "domain"},
+        [1, 2], {**base, "domain": [0, 0, True, 32]}, {**base, "channels": "rgb"}, {**base, "encoder": 3},
+    ]
+    for h in bad:
+        with pytest.raises(FormatError):
+            decode_dfield(with_header(blob, h))
+    text = json.dumps(base).encode()
+    for raw in (text.replace(b'"identity"', b"NaN"), b"\xff" + text, text[:-1], b'{"a": 1, "a": 2}',
+                b"[" * 100000 + b"]" * 100000, b'{"x": ' + b"[" * 40 + b"]" * 40 + b"}", b" " * (2**20 + 1)):
+        with pytest.raises(FormatError):
+            decode_dfield(with_header(blob, raw))
+    assert decode_dfield(with_header(blob, {**base, "future_key": {"a": 1}})).header["future_key"] == {"a": 1}
+
+
+def test_golden_files():
+    valid = sorted((GOLDEN / "valid").glob("*.dfield"))
+    invalid = sorted((GOLDEN / "invalid").glob("*.dfield"))
+    assert valid and invalid
+    for path in valid:
+        expected = json.loads(path.with_suffix(".json").read_text())
+        c = read_dfield(path)
+        assert c.mesh.n_vertices == expected["vertices"] and c.features.shape == tuple(expected["features_shape"])
+        assert np.isclose(float(c.features.sum()), expected["features_sum"], rtol=1e-6)
+    for path in invalid:
+        with pytest.raises(FormatError):
+            read_dfield(path)

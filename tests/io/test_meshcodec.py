@@ -1,0 +1,215 @@
+"""MESH/TOPO chunk encoding: quantisation, canonical order, fallback ladder, hostile payloads."""
+
+import numpy as np
+import pytest
+import zstandard
+from scipy.spatial import Delaunay
+
+from dfc.errors import FormatError, MeshError
+from dfc.geometry.mesh import Mesh
+from dfc.io.meshcodec import (
+    MAX_MESH_BITS,
+    compress,
+    decode_mesh,
+    decompress,
+    encode_mesh,
+    encode_roundtripped,
+    mesh_info,
+    roundtrip_mesh,
+)
+
+
+def make_mesh(n_interior=60, n_side=6, n_disc=8, n_curves=10, domain=(0.0, 0.0, 64.0, 32.0), seed=0) -> Mesh:
+    """A valid Mesh: Delaunay of random points with exact border points, random discontinuous edges and
+    curves bulging slightly into their triangle from one edge (the chord)."""
+    rng = np.random.default_rng(seed)
+    x0, y0, x1, y1 = domain
+    s = rng.random((4, n_side))
+    border = np.concatenate([
+        np.stack([x0 + s[0] * (x1 - x0), np.full(n_side, y0)], 1), np.stack([x0 + s[1] * (x1 - x0), np.full(n_side, y1)], 1),
+        np.stack([np.full(n_side, x0), y0 + s[2] * (y1 - y0)], 1), np.stack([np.full(n_side, x1), y0 + s[3] * (y1 - y0)], 1),
+        np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]),
+    ])
+    inner = np.array([x0, y0]) + (0.05 + 0.9 * rng.random((n_interior, 2))) * np.array([x1 - x0, y1 - y0])
+    v = np.concatenate([border, inner])
+    t = Delaunay(v).simplices.astype(np.int64)
+    p = v[t]
+    cw = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 1, 1] - p[:, 0, 1]) * (p[:, 2, 0] - p[:, 0, 0]) < 0
+    t[cw] = t[cw][:, [0, 2, 1]]
+    # curves: chord = edge k -> k+1 of a triangle with acute base angles (so the curve is a graph over it),
+    # one curve per triangle and per chord; control points on the edges towards the apex keep it inside
+    cand_t, cand_k = np.repeat(np.arange(len(t)), 3), np.tile(np.arange(3), len(t))
+    A, B, Cx = v[t[cand_t, cand_k]], v[t[cand_t, (cand_k + 1) % 3]], v[t[cand_t, (cand_k + 2) % 3]]
+    proj = np.sum((Cx - A) * (B - A), axis=1) / np.sum((B - A) ** 2, axis=1)
+    chosen, chords, used = [], set(), set()
+    for i in rng.permutation(np.flatnonzero((proj > 0.05) & (proj < 0.95))):
+        ti, k = int(cand_t[i]), int(cand_k[i])
+        key = tuple(sorted((t[ti, k], t[ti, (k + 1) % 3])))
+        if key not in chords and ti not in used:
+            chords.add(key)
+            used.add(ti)
+            chosen.append((ti, k))
+        if len(chosen) == n_curves:
+            break
+    ct = np.array([c[0] for c in chosen], np.int64)
+    k = np.array([c[1] for c in chosen], np.int64)
+    a, b, c = t[ct, k], t[ct, (k + 1) % 3], t[ct, (k + 2) % 3]
+    A, B, Cx = v[a], v[b], v[c]
+    deg = (2 + (np.arange(len(ct)) % 2)).astype(np.int8)
+    Q = (A + B + Cx) / 3
+    P1 = np.where(deg[:, None] == 3, A + 0.3 * (Cx - A), (A + 2 * Q) / 3)
+    P2 = np.where(deg[:, None] == 3, B + 0.2 * (Cx - B), (2 * Q + B) / 3)
+    cp = np.stack([A, P1, P2, B], axis=1)
+    # discontinuous edges: mesh edges that are no chord
+    edges = np.unique(np.sort(t[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    edges = np.array([e for e in edges if tuple(e) not in chords])
+    disc = edges[rng.choice(len(edges), n_disc, replace=False)]
+    return Mesh(domain=tuple(domain), vertices=v, triangles=t, disc_edges=disc, curved_triangles=ct,
+                curve_endpoints=np.stack([a, b], 1), curve_control_points=cp, curve_degree=deg,
+                disc_edge_piece=np.arange(n_disc, dtype=np.int64), curve_piece=np.arange(len(ct), dtype=np.int64) + 100)
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    m = make_mesh()
+    m.validate()
+    return m
+
+
+def _edge_set(edges, verts):
+    return {tuple(sorted(map(tuple, verts[e].round(9).tolist()))) for e in edges}
+
+
+def test_roundtrip_keeps_topology_and_bounds_error(mesh):
+    bits = 14
+    out = roundtrip_mesh(mesh, bits)
+    assert out.n_vertices == mesh.n_vertices and out.n_triangles == mesh.n_triangles
+    x0, y0, x1, y1 = mesh.domain
+    step = np.array([x1 - x0, y1 - y0]) / (2**bits - 1)
+    # match vertices by nearest grid point: each moves at most half a grid step per axis
+    order_in = np.lexsort((mesh.vertices[:, 1], mesh.vertices[:, 0]))
+    moved = np.abs(out.vertices - mesh.vertices[order_in])
+    assert np.all(moved <= step / 2 * (1 + 1e-9))
+    # same discontinuous edges and curves up to the vertex renumbering
+    vmap = np.empty(mesh.n_vertices, np.int64)
+    vmap[order_in] = np.arange(mesh.n_vertices)
+    assert {tuple(sorted(e)) for e in vmap[mesh.disc_edges].tolist()} == {tuple(sorted(e)) for e in out.disc_edges.tolist()}
+    assert np.array_equal(vmap[mesh.curve_endpoints], out.curve_endpoints)
+    assert np.array_equal(out.curve_piece, mesh.curve_piece) and np.array_equal(out.disc_edge_piece, mesh.disc_edge_piece)
+    assert np.array_equal(out.curve_degree, mesh.curve_degree)
+    # curves stay in their triangles, ends coincide with vertices bit for bit
+    assert np.array_equal(out.curve_control_points[:, 0], out.vertices[out.curve_endpoints[:, 0]])
+    assert np.array_equal(out.curve_control_points[:, 3], out.vertices[out.curve_endpoints[:, 1]])
+    assert set(out.curve_endpoints[0]) <= set(out.triangles[out.curved_triangles[0]].tolist())
+    out.validate()
+
+
+def test_border_vertices_stay_exactly_on_border(mesh):
+    out = roundtrip_mesh(mesh, 9)
+    x0, y0, x1, y1 = mesh.domain
+    for coord, value in ((0, x0), (0, x1), (1, y0), (1, y1)):
+        assert np.count_nonzero(out.vertices[:, coord] == value) == np.count_nonzero(mesh.vertices[:, coord] == value)
+
+
+def test_quadratics_stay_exact_elevations(mesh):
+    out = roundtrip_mesh(mesh, 12)
+    quad = out.curve_degree == 2
+    cp = out.curve_control_points[quad]
+    q1, q2 = (3 * cp[:, 1] - cp[:, 0]) / 2, (3 * cp[:, 2] - cp[:, 3]) / 2
+    assert np.allclose(q1, q2, rtol=0, atol=1e-12)
+
+
+def test_canonical_order_is_a_fixed_point(mesh):
+    out = roundtrip_mesh(mesh, 12)
+    again = roundtrip_mesh(out, 12)
+    for f in ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points"):
+        assert np.array_equal(getattr(out, f), getattr(again, f)), f
+    assert np.all(np.diff(out.vertices[:, 0]) >= 0)
+    m, t = encode_roundtripped(out)
+    assert mesh_info(m, t)["encoding"] == "draco" and mesh_info(m, t)["bits"] == 12
+
+
+def test_writer_finds_the_grid_of_a_decoder_view(mesh):
+    out = roundtrip_mesh(mesh, 10)
+    m, t = encode_roundtripped(out)
+    assert mesh_info(m, t)["encoding"] == "draco" and 10 <= mesh_info(m, t)["bits"] < 16
+    again = decode_mesh(m, t, mesh.domain)
+    assert np.array_equal(again.vertices, out.vertices) and np.array_equal(again.triangles, out.triangles)
+
+
+def test_a_mesh_that_is_not_a_decoder_view_is_written_losslessly(mesh):
+    m, t = encode_roundtripped(mesh)
+    assert mesh_info(m, t)["encoding"] == "raw"
+    assert np.array_equal(decode_mesh(m, t, mesh.domain).vertices, mesh.vertices)
+    bad = make_mesh()
+    bad.disc_edges = np.array([[0, 0]])
+    bad.disc_edge_piece = np.array([0])
+    with pytest.raises(MeshError, match="invalid"):
+        encode_roundtripped(bad)
+
+
+def test_low_bits_fall_back_until_valid(mesh):
+    out = roundtrip_mesh(mesh, 2)  # a 4 x 4 grid cannot hold 100 distinct vertices
+    m, t = encode_roundtripped(out)
+    info = mesh_info(m, t)
+    assert info["encoding"] == "raw" or info["bits"] > 2
+    out.validate()
+
+
+def test_raw_encoding_is_lossless(mesh):
+    m, t = encode_mesh(mesh, None)
+    out = decode_mesh(m, t, mesh.domain)
+    for f in ("vertices", "triangles", "disc_edges", "curve_control_points", "curve_endpoints"):
+        assert np.array_equal(getattr(out, f), getattr(mesh, f)), f
+
+
+def test_invalid_mesh_is_refused_even_losslessly(mesh):
+    bad = make_mesh()
+    bad.triangles = bad.triangles[:, [0, 2, 1]]
+    with pytest.raises(MeshError):
+        roundtrip_mesh(bad, 12)
+
+
+def test_bits_out_of_range(mesh):
+    with pytest.raises(ValueError):
+        encode_mesh(mesh, MAX_MESH_BITS + 1)
+
+
+def test_draco_header_counts_must_match(mesh):
+    m, t = encode_mesh(mesh, 12)
+    lying = bytearray(m)
+    lying[4:8] = (mesh.n_vertices + 1).to_bytes(4, "little")
+    with pytest.raises(FormatError, match="declares"):
+        decode_mesh(bytes(lying), t, mesh.domain)
+
+
+def test_hostile_draco_payloads_raise_format_error(mesh):
+    m, t = encode_mesh(mesh, 12)
+    rng = np.random.default_rng(1)
+    outcomes = set()
+    for _ in range(300):
+        b = bytearray(m)
+        i = int(rng.integers(12, len(b)))
+        b[i] = int(rng.integers(256))
+        try:
+            out = decode_mesh(bytes(b), t, mesh.domain)
+            out.validate()
+            outcomes.add("valid")
+        except FormatError:
+            outcomes.add("refused")
+    assert "refused" in outcomes
+
+
+def test_zstd_frames_are_checked_before_decompressing():
+    frame = compress(b"x" * 1000, 3)
+    assert decompress(frame, 1000, "T") == b"x" * 1000
+    with pytest.raises(FormatError, match="declares"):
+        decompress(frame, 999, "T")
+    with pytest.raises(FormatError, match="after its frame"):
+        decompress(frame + b"\0", 1000, "T")
+    with pytest.raises(FormatError):
+        decompress(zstandard.ZstdCompressor(write_content_size=False).compress(b"abc"), 3, "T")
+    with pytest.raises(FormatError):
+        decompress(frame[:-3], 1000, "T")
+    with pytest.raises(FormatError):
+        decompress(b"", 0, "T")
