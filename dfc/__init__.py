@@ -27,8 +27,8 @@ _LAZY = {
     "encode_frames": "dfc.codec",
     "read_fem": "dfc.io.fem",
     "read_frames": "dfc.io.frames",
-    "load": "dfc.codec",
-    "loads": "dfc.codec",
+    "load": "dfc.io.dfield",
+    "loads": "dfc.io.dfield",
     "read_image": "dfc.io.image",
     "render": "dfc.render",
 }

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["mse", "psnr"]
+__all__ = ["data_range", "mse", "psnr"]
 
 
 def _pair(image_true, image_test) -> tuple[np.ndarray, np.ndarray]:
@@ -62,3 +62,16 @@ def psnr(image_true, image_test, data_range: float | None = None) -> float:
     if err == 0:
         return float("inf")
     return float(10.0 * np.log10(data_range**2 / err))
+
+
+def data_range(values, *, physical: bool = False) -> float:
+    """The PSNR data range dfc measures a signal ``values`` (any shape) with, everywhere it reports a PSNR.
+
+    Colours (``physical=False``): 1 when every value lies in [0, 1] (LDR), else the values' span (HDR).
+    Physical quantities (simulation data, of any magnitude): the span. At least 1e-12 (a constant signal).
+    """
+    v = np.asarray(values)
+    lo, hi = float(v.min()), float(v.max())
+    if not physical and lo >= 0.0 and hi <= 1.0:
+        return 1.0
+    return max(hi - lo, 1e-12)

@@ -6,11 +6,13 @@ import pytest
 import torch
 
 from dfc.bench.scenes import sample_scene
-from dfc.codec import EncodeSettings, build_mesh, check_domain, encode_image, from_contents, loads, to_contents
+from dfc.codec import EncodeSettings, check_domain, encode_image, loads
 from dfc.errors import FormatError, InputError
 from dfc.field.feature_field import FeatureField
 from dfc.field.model import FieldModel
 from dfc.io.container import decode_dfield, encode_dfield
+from dfc.io.dfield import from_contents, to_contents
+from dfc.rate import build_mesh
 from dfc.render import render
 
 
@@ -123,20 +125,20 @@ def test_nan_image_is_refused(scene):
 
 
 def test_sample_sets_size_their_mesh_by_the_sample_count(scene):
-    from dfc.codec import NOISY_SAMPLES_PER_TRIANGLE, _sample_mesh_size
     from dfc.geometry.triangulate import triangulate
+    from dfc.rate import NOISY_SAMPLES_PER_TRIANGLE, sample_mesh_size
 
     curves = scene.curves
     floor = triangulate(curves, max_triangles=None).n_triangles  # at least what the curves force
-    many, _ = _sample_mesh_size(curves, EncodeSettings(), 10**9)
+    many, _ = sample_mesh_size(curves, EncodeSettings(), 10**9)
     assert many.max_triangles == 2000  # capped at the default mesh
-    few, few_mesh = _sample_mesh_size(curves, EncodeSettings(), 10)
+    few, few_mesh = sample_mesh_size(curves, EncodeSettings(), 10)
     assert 2 < few.max_triangles <= floor
     assert triangulate(curves, max_triangles=few.max_triangles).n_triangles <= few.max_triangles
     assert few_mesh.n_triangles <= few.max_triangles  # the mesh the fit runs on, built once
     n = 300 * NOISY_SAMPLES_PER_TRIANGLE
-    middle, _ = _sample_mesh_size(curves, EncodeSettings(), n)
+    middle, _ = sample_mesh_size(curves, EncodeSettings(), n)
     assert middle.max_triangles == max(300, few.max_triangles)
     given = EncodeSettings(max_area=5.0)
-    kept, no_mesh = _sample_mesh_size(curves, given, 10)
+    kept, no_mesh = sample_mesh_size(curves, given, 10)
     assert kept is given and no_mesh is None  # an explicit mesh size wins

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from dfc.bench.scenes import sample_scene
-from dfc.codec import from_contents, loads, to_contents
+from dfc.codec import loads
 from dfc.field.feature_field import FeatureField
 from dfc.field.mlp import OneBlob
 from dfc.field.model import FieldModel
@@ -17,6 +17,7 @@ from dfc.field.side import chord_frames, in_sliver
 from dfc.geometry.curves import Curves, elevate
 from dfc.geometry.triangulate import triangulate
 from dfc.io.container import decode_dfield, encode_dfield
+from dfc.io.dfield import from_contents, to_contents
 from dfc.io.meshcodec import roundtrip_mesh
 
 from .reference_decoder import ReferenceField, read_chunks

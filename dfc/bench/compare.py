@@ -2,7 +2,7 @@
 
 ``run_bench`` fits dfc (``dfc.codec.encode_image``, decoded again with ``dfc.codec.loads``) to a raster,
 then sizes every baseline (``dfc.bench.baselines``) to the ``.dfield``'s byte count and trains it on the same
-raster with the same number of steps and batch size (``dfc.train.fit.image_sampler``; the baselines do not know
+raster with the same number of steps and batch size (``dfc.train.samplers.image_sampler``; the baselines do not know
 the curves, so they see every pixel). Each probe point gets one window per zoom ``z``: the domain's size
 divided by ``z``, centred on the probe and shifted to lie inside the domain (so zoom 1 is the domain
 itself). A window is rendered at ``render × render·aspect`` pixels, each the mean of ``spp`` points
@@ -186,14 +186,14 @@ def _step_progress(name: str, settings: BenchSettings, progress):
 
 def _fit_baseline(name: str, pixels, domain, channels, n_bytes: int, settings: BenchSettings, loss: str,
                   data_range: float, progress) -> tuple[nn.Module, dict]:
-    from ..train.fit import image_sampler
-    from .baselines import BASELINES, train
+    from ..train.samplers import image_sampler
+    from .baselines import BASELINES, fit_baseline
 
     model = BASELINES[name].for_budget(n_bytes, domain, channels, image=pixels, seed=settings.seed,
                                        device=settings.device)
     model.init_mean(torch.from_numpy(pixels.reshape(-1, pixels.shape[2]).mean(axis=0)))
     sampler = image_sampler(pixels, domain, settings.batch_size, device=settings.device, seed=settings.seed)
-    train(model, sampler, settings.steps, loss=loss, seed=settings.seed, data_range=data_range,
+    fit_baseline(model, sampler, settings.steps, loss=loss, seed=settings.seed, data_range=data_range,
           callback=_step_progress(name, settings, progress))
     details = model.describe()
     if list(model.parameters()):  # what zstd would save on the fp16 parameters

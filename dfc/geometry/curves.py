@@ -139,6 +139,15 @@ def split_pieces(curves: Curves, max_length: float, *, lines: bool = False, curv
                   curves.source)
 
 
+def fit_curves_to_domain(curves: Curves, domain: tuple[float, float, float, float]) -> Curves:
+    """``curves`` scaled and translated so that their domain maps onto ``domain`` (independently in x and y)."""
+    sx0, sy0, sx1, sy1 = curves.domain
+    dx0, dy0, dx1, dy1 = domain
+    scale = np.array([(dx1 - dx0) / (sx1 - sx0), (dy1 - dy0) / (sy1 - sy0)])
+    cp = (curves.control_points - [sx0, sy0]) * scale + [dx0, dy0]
+    return Curves(domain, cp, curves.degree, curves.curve, curves.t_range, curves.names, curves.sides, curves.source)
+
+
 def read_curves(path: str | Path) -> Curves:
     """Read a curves file, choosing the reader by extension: ``.svg``, ``.json``, ``.xml``.
 

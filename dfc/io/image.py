@@ -245,6 +245,18 @@ def _read_pil(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
     return planes, names, False
 
 
+def check_pixels(image) -> np.ndarray:
+    """The (H, W, C) float32 pixels of an ``Image`` or array, checked: C ≥ 1 and every value finite (``InputError``)."""
+    pixels = np.ascontiguousarray(getattr(image, "pixels", image), dtype=np.float32)
+    if pixels.ndim != 3 or min(pixels.shape) < 1:
+        raise InputError(f"expected an image (H, W, C) with H, W, C ≥ 1, got shape {pixels.shape}")
+    bad = ~np.isfinite(pixels)
+    if bad.any():
+        j, i, c = np.argwhere(bad)[0]
+        raise InputError(f"image has {int(bad.sum())} NaN/Inf values, the first at row {j}, column {i}, channel {c}")
+    return pixels
+
+
 # -- whole-image writers --------------------------------------------------------------------------
 def _check_raster(pixels, channels=None) -> np.ndarray:
     pixels = np.asarray(pixels, dtype=np.float32)

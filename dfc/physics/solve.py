@@ -27,7 +27,8 @@ come from a pool of ``POOL_CURVE_POINTS`` jittered points evenly spaced in arc l
 to junctions and crossings) are dropped from the pool. Every method — dfc and the baselines — gets the same
 points for the same seed.
 
-**Optimiser.** Adam with betas (0.9, 0.99) and the learning rate decaying geometrically from ``lr`` to
+**Optimiser.** ``dfc.train.loop.train``: Adam with betas (0.9, 0.99) and the learning rate decaying geometrically
+from ``lr`` to
 ``lr · FINAL_LR_FACTOR``; the last ``QAT_SHARE`` of the steps run with the model's quantised mode on (stored
 feature bits and fp16 weights, ``FieldModel.quantization`` / ``Baseline.quantization``), so the written file and
 the stored baseline evaluate as trained. The library never prints: progress goes to ``callback``.
@@ -46,6 +47,7 @@ from torch import Tensor, nn
 from ..errors import InputError
 from ..geometry import bezier
 from ..geometry.mesh import Mesh
+from ..metrics import data_range
 from .wos import Scene
 
 __all__ = ["BOUNDARY_WEIGHT", "DFC_LR", "OFFSET_REL", "SolveProblem", "SolveReport", "SolveSettings", "dfc_model",
@@ -66,8 +68,6 @@ QAT_SHARE = 0.1
 """Share of the steps run quantisation-aware at the end."""
 POOL_CURVE_POINTS = 1 << 14
 """Curve points in the boundary pool (each gives one point per side)."""
-BETAS = (0.9, 0.99)
-"""Adam's betas (DESIGN §6)."""
 DEFAULT_STEPS = 1000
 DEFAULT_BATCH = 1 << 12
 """Interior points (and boundary points) per step of ``dfc solve``: at 1024, dfc's energy estimate is noisier
@@ -116,9 +116,8 @@ class SolveProblem:
 
     @property
     def data_range(self) -> float:
-        """PSNR data range of this scene: 1 when every prescribed value lies in [0, 1], else their span."""
-        v = self.boundary_values
-        return 1.0 if v.min() >= 0 and v.max() <= 1 else max(float(v.max() - v.min()), 1e-12)
+        """PSNR data range of this scene: ``dfc.metrics.data_range`` of the prescribed values."""
+        return data_range(self.boundary_values)
 
     def _pool(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         lines = self.scene.lines
@@ -202,9 +201,21 @@ def losses(model: nn.Module, problem: SolveProblem, xy: Tensor, bxy: Tensor, tar
     return energy.to(torch.float32), boundary
 
 
+class PoissonLoss:
+    """``loss`` of ``dfc.train.loop.train`` for a solve: ``E + weight · B`` on a ``physics_sampler`` batch; metrics
+    ``energy`` and ``boundary``."""
+
+    def __init__(self, problem: SolveProblem, weight: float):
+        self.problem, self.weight = problem, weight
+
+    def __call__(self, model: nn.Module, batch: tuple) -> tuple[Tensor, dict[str, Tensor]]:
+        energy, boundary = losses(model, self.problem, *batch)
+        return energy + self.weight * boundary, {"energy": energy.detach(), "boundary": boundary.detach()}
+
+
 def solve(model: nn.Module, problem: SolveProblem, *, steps: int, batch_size: int, lr: float,
           boundary_weight: float = BOUNDARY_WEIGHT, feature_bits: int = 8, seed: int = 0,
-          callback: Callable[[int, float, float], None] | None = None) -> dict:
+          callback: Callable[[int, Tensor, Tensor], None] | None = None) -> dict:
     """Train ``model`` in place on the loss ``E + boundary_weight · B`` (module docstring).
 
     model : any module ``xy (N, 2) domain units -> (N, C)`` with a ``quantization`` property (``FieldModel`` or a
@@ -213,44 +224,24 @@ def solve(model: nn.Module, problem: SolveProblem, *, steps: int, batch_size: in
     lr : Adam's starting learning rate (decays to ``lr · FINAL_LR_FACTOR``)
     feature_bits : the quantised mode of the last ``QAT_SHARE`` of the steps (left on at return)
     seed : seeds the samples (the same for every model)
-    callback : ``callback(step, energy, boundary)`` after every step
+    callback : ``callback(step, energy, boundary)`` after every step (0-dim tensors)
 
     A model with ``stages`` / ``next_stage`` (a coarse-to-fine baseline) grows between its stages, each stage with
-    a fresh Adam. Returns ``{"energy": [...], "boundary": [...]}``, one float per step.
+    a fresh Adam; the learning rate decays straight through the stages. Returns ``{"energy": [...], "boundary":
+    [...]}``, one float per step.
     """
+    from ..train.loop import Schedule, train
+    from ..train.samplers import physics_sampler
+
     if not isinstance(steps, int) or steps < 1 or not isinstance(batch_size, int) or batch_size < 1:
         raise InputError(f"steps and batch size must be positive integers, got {steps!r} and {batch_size!r}")
     if not (math.isfinite(boundary_weight) and boundary_weight > 0) or not (math.isfinite(lr) and lr > 0):
         raise InputError(f"boundary weight and learning rate must be positive, got {boundary_weight} and {lr}")
     device = next(model.parameters()).device
-    generator = torch.Generator().manual_seed(seed)
-    decay = FINAL_LR_FACTOR ** (1.0 / max(1, steps - 1))
-    qat_from = steps - max(1, round(QAT_SHARE * steps))
-    stages = model.stages(steps) if hasattr(model, "stages") else [steps]
-    starts = set(np.cumsum(stages)[:-1].tolist())
-    optimizer = torch.optim.Adam(model.parameters(), lr=lr, betas=BETAS)
-    history: dict[str, list[float]] = {"energy": [], "boundary": []}
-    model.train()
-    for step in range(steps):
-        if step in starts:  # coarse to fine: a grown model has new parameters
-            model.next_stage()
-            optimizer = torch.optim.Adam(model.parameters(), lr=lr, betas=BETAS)
-        if step == qat_from:
-            model.quantization = {"feature_bits": feature_bits}
-        for group in optimizer.param_groups:
-            group["lr"] = lr * decay**step
-        xy = problem.interior(batch_size, generator).to(device)
-        bxy, target = (v.to(device) for v in problem.boundary(batch_size, generator))
-        energy, boundary = losses(model, problem, xy, bxy, target)
-        optimizer.zero_grad(set_to_none=True)
-        (energy + boundary_weight * boundary).backward()
-        optimizer.step()
-        history["energy"].append(float(energy.detach()))
-        history["boundary"].append(float(boundary.detach()))
-        if callback is not None:
-            callback(step, history["energy"][-1], history["boundary"][-1])
-    model.eval()
-    return history
+    schedule = Schedule(steps, lr=lr, final_lr=lr * FINAL_LR_FACTOR, qat_steps=max(1, round(QAT_SHARE * steps)),
+                        feature_bits=feature_bits)
+    return train(model, PoissonLoss(problem, boundary_weight), physics_sampler(problem, batch_size, device=device),
+                 schedule, seed=seed, callback=callback)
 
 
 def dfc_model(mesh: Mesh, channels: list[str], mean: np.ndarray, *, dim: int = 5, seed: int = 0,
@@ -305,7 +296,8 @@ class SolveReport:
 
 def prepare(curves, settings: SolveSettings) -> SolveProblem:
     """The scene (``InputError`` without side values), dfc's decoder-view mesh and their sample sets."""
-    from ..codec import EncodeSettings, build_mesh
+    from ..codec import EncodeSettings
+    from ..rate import build_mesh
 
     scene = Scene(curves)
     mesh = build_mesh(curves, EncodeSettings(max_triangles=settings.max_triangles, mesh_bits=settings.mesh_bits))
@@ -321,8 +313,9 @@ def solve_scene(curves, settings: SolveSettings | None = None, *, problem: Solve
     """
     import time
 
-    from ..codec import _encoder_info, to_contents
+    from ..codec import encoder_info
     from ..io.container import encode_dfield
+    from ..io.dfield import to_contents
     from ..io.samples import default_channels
 
     settings = settings or SolveSettings()
@@ -339,7 +332,7 @@ def solve_scene(curves, settings: SolveSettings | None = None, *, problem: Solve
                     boundary_weight=settings.boundary_weight, feature_bits=settings.feature_bits, seed=settings.seed,
                     callback=callback)
     seconds["solve_s"] = time.perf_counter() - clock
-    info = _encoder_info(settings, curves.source, {"input": "physics-informed solve"})
+    info = encoder_info(settings, curves.source, {"input": "physics-informed solve"})
     blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits)
     report = SolveReport(total_bytes=len(blob), chunk_bytes=sizes, n_vertices=mesh.n_vertices,
                          n_triangles=mesh.n_triangles, n_features=model.field.n_features,

@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from dfc.bench.baselines import BASELINES, HashGrid, Raster, ReluField, train
+from dfc.bench.baselines import BASELINES, HashGrid, Raster, ReluField, fit_baseline
 from dfc.bench.baselines.base import fp16_bytes
 from dfc.bench.baselines.hashgrid import PRIMES, level_layout
 from dfc.bench.baselines.raster import area_resize, exr_bytes
 from dfc.bench.scenes import shapes_scene
 from dfc.metrics import psnr
-from dfc.train.fit import image_sampler
+from dfc.train.samplers import image_sampler
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -149,7 +149,7 @@ def test_baselines_fit_a_tiny_image(image, name, threshold):
         cls.for_budget(8_000, DOMAIN, RGB)
     model.init_mean(torch.from_numpy(image.reshape(-1, 3).mean(0)))
     before = psnr(image, model(_centres(32)).detach().numpy().reshape(32, 32, 3), data_range=1.0)
-    history = train(model, image_sampler(image, DOMAIN, 1024), 120)
+    history = fit_baseline(model, image_sampler(image, DOMAIN, 1024), 120)
     with torch.no_grad():
         after = psnr(image, model(_centres(32)).numpy().reshape(32, 32, 3), data_range=1.0)
     assert after > threshold and after > before + 5
@@ -183,7 +183,7 @@ def test_relu_field_reaches_hdr_values():
     model = ReluField.for_budget(8_000, DOMAIN, RGB, image=hdr)
     assert model.value_scale == pytest.approx(float(hdr.max())) and model.hi is None
     model.init_mean(torch.from_numpy(hdr.reshape(-1, 3).mean(0)))
-    train(model, image_sampler(hdr, DOMAIN, 1024), 120, loss="relmse")
+    fit_baseline(model, image_sampler(hdr, DOMAIN, 1024), 120, loss="relmse")
     with torch.no_grad():
         out = model(_centres(32)).numpy().reshape(32, 32, 3)
     span = float(hdr.max() - hdr.min())

@@ -12,7 +12,8 @@ import torch
 from dfc.codec import EncodeSettings, encode_fem, load, loads
 from dfc.errors import InputError
 from dfc.geometry.curves import read_curves
-from dfc.io.fem import evaluate_fem, fem_curves, from_meshio, interpolate, read_fem, sample_fem
+from dfc.io.fem import from_meshio, read_fem
+from dfc.physics.fem import evaluate_fem, fem_curves, interpolate, sample_fem
 
 from ..cli.test_cli import assert_one_line_error, run
 from ..conftest import SAMPLES
@@ -117,7 +118,7 @@ def test_no_leakage_across_the_barrier(tmp_path, one_thread):
     (0.042), fails for any such blend and leaves a margin of four over the fit's own error at this size (0.003 on
     the lit side, 0.01 in the shadow)."""
     from dfc.bench.speed.fem import side_points
-    from dfc.io.fem import barrier_segments
+    from dfc.physics.fem import barrier_segments
 
     mh = _make_helmholtz()
     points, triangles, u = mh.solve(32, 20.0)

@@ -5,10 +5,11 @@ import pytest
 import torch
 
 from dfc.bench.baselines import TanhField
-from dfc.codec import EncodeSettings, build_mesh, load, loads
+from dfc.codec import EncodeSettings, load, loads
 from dfc.physics.reference import solve_reference
 from dfc.physics.solve import SolveProblem, SolveSettings, TwiceDifferentiable, dfc_model, prepare, solve, solve_scene
 from dfc.physics.wos import Scene
+from dfc.rate import build_mesh
 
 from ..cli.test_cli import run
 from ..conftest import SAMPLES

@@ -9,10 +9,13 @@ from dfc.field.feature_field import FeatureField
 from dfc.field.model import FieldModel
 from dfc.field.quantize import dequantize_features, quantize_features
 from dfc.geometry.curves import Curves, elevate
+from dfc.geometry.pixels import edge_pixels
 from dfc.geometry.triangulate import triangulate
 from dfc.metrics import psnr
 from dfc.render import render
-from dfc.train.fit import edge_pixels, fit, fit_image, image_sampler, loss_value
+from dfc.train.fit import fit, fit_image
+from dfc.train.losses import loss_value
+from dfc.train.samplers import image_sampler
 
 # -- a 64 × 64 analytic scene: a line, a quadratic ending on it, an S-shaped cubic and an open stroke --
 LINE = [(44.0, 0.0), (36.0, 64.0)]  # x = 44 - y / 8, splits left / right

@@ -4,7 +4,7 @@ physics-informed ones, ``Siren`` and ``TanhMLP``, keep the paper's fixed archite
 ``BASELINES`` maps a method's key in benchmark results to its class.
 """
 
-from .base import Baseline, train
+from .base import Baseline, fit_baseline
 from .hashgrid import HashGrid
 from .raster import Raster
 from .relu_field import ReluField
@@ -12,6 +12,6 @@ from .siren import Siren
 from .tanh_field import TanhField
 from .tanh_mlp import TanhMLP
 
-__all__ = ["BASELINES", "Baseline", "HashGrid", "Raster", "ReluField", "Siren", "TanhField", "TanhMLP", "train"]
+__all__ = ["BASELINES", "Baseline", "HashGrid", "Raster", "ReluField", "Siren", "TanhField", "TanhMLP", "fit_baseline"]
 
 BASELINES = {cls.name: cls for cls in (HashGrid, ReluField, Raster, TanhField, Siren, TanhMLP)}

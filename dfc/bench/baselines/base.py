@@ -2,13 +2,14 @@
 
 A baseline is a ``torch.nn.Module`` mapping positions ``xy (N, 2)`` in domain units to values
 ``(N, C)`` float32, sized to a byte budget by ``for_budget`` and trained with the same loop as dfc
-(``train``, a thin wrapper over ``dfc.train.fit.fit``), so all methods see the same samples and steps.
+(``fit_baseline``, through the one training loop ``dfc.train.loop.train``), so all methods see the same samples
+and steps.
 
 Storage rules (what ``stored_bytes`` counts).
 
 - *Parametric baselines* (hash grid, ReLU field; later SIREN, tanh grid, tanh MLP): every trainable
   parameter is stored as an IEEE float16, **uncompressed**: ``stored_bytes = 2 × number of parameters``.
-  Architecture hyper-parameters (a handful of integers) are not counted. After ``train`` the parameters
+  Architecture hyper-parameters (a handful of integers) are not counted. After ``fit_baseline`` the parameters
   are rounded through float16 in place, so the module evaluates exactly as the stored bytes decode.
   Sizing needs the size before training, which fixes the rule to raw bytes; ``dfc.bench.compare`` also reports
   ``zstd_bytes``, the zstd (level 19) size of the trained fp16 parameters. Measured on the ``shapes`` scene
@@ -32,7 +33,7 @@ from torch.nn.utils import parametrize
 
 from ...field.quantize import fake_fp16
 
-__all__ = ["FP16_BYTES", "Baseline", "fp16_bytes", "normalise", "train", "value_scale"]
+__all__ = ["FP16_BYTES", "Baseline", "fit_baseline", "fp16_bytes", "normalise", "value_scale"]
 
 FP16_BYTES = 2
 """Bytes per stored parameter (IEEE half float)."""
@@ -75,7 +76,7 @@ class Baseline(nn.Module):
         fixed step sizes this lets one learning rate serve LDR (scale 1) and HDR (scale = the data's
         largest magnitude, ``value_scale(image)``); one number of the architecture, not counted in bytes.
 
-    ``quantization`` mirrors ``FieldModel.quantization`` so ``dfc.train.fit.fit`` can run
+    ``quantization`` mirrors ``FieldModel.quantization`` so ``dfc.train.loop.train`` can run
     quantisation-aware steps on a baseline: any non-None value makes every parameter read as its
     float16 rounding (straight-through gradient), which is how the parameters are stored.
     """
@@ -154,7 +155,7 @@ class Baseline(nn.Module):
             self._quantization = dict(value)
 
 
-def train(
+def fit_baseline(
     model: Baseline,
     sampler: Callable,
     steps: int,
@@ -163,35 +164,23 @@ def train(
     loss: str = "mse",
     seed: int = 0,
     final_lr: float | None = 1e-3,
-    callback: Callable[[int, float, float], None] | None = None,
+    callback: Callable[..., None] | None = None,
     data_range: float = 1.0,
 ) -> dict:
-    """Train a baseline with ``dfc.train.fit.fit`` on ``sampler`` for ``steps`` steps, then round it to storage.
+    """Fit a baseline to a data sampler for ``steps`` steps (``dfc.train.loop.train`` with ``DataLoss``), then
+    round it to storage.
 
     Coarse-to-fine models train stage by stage (``model.stages``), each stage with a fresh Adam and the
     learning-rate schedule restarted; ``callback(step, loss, psnr)`` sees the global step. A model with no
     trainable parameters (the raster) is returned untouched. Returns ``{"loss": [...], "psnr": [...]}``.
     """
-    from ...train.fit import fit
+    from ...train.loop import Schedule, train
+    from ...train.losses import DataLoss
 
-    history: dict[str, list[float]] = {"loss": [], "psnr": []}
     if not any(p.requires_grad for p in model.parameters()):
-        return history
-    stages = model.stages(steps)
-    done = 0
-    for k, n in enumerate(stages):
-        if k:
-            model.next_stage()
-        offset = done
-
-        def cb(step, value, psnr, offset=offset):
-            if callback is not None:
-                callback(offset + step, value, psnr)
-
-        h = fit(model, lambda step, g, offset=offset: sampler(offset + step, g)[:2], steps=n, lr=lr,
-                final_lr=final_lr, loss=loss, seed=seed + k, callback=cb, data_range=data_range)
-        history["loss"] += h["loss"]
-        history["psnr"] += h["psnr"]
-        done += n
+        return {"loss": [], "psnr": []}
+    schedule = Schedule(steps, lr=lr, final_lr=final_lr, restart_stages=True)
+    history = train(model, DataLoss(loss, data_range), lambda step, g: sampler(step, g)[:2], schedule, seed=seed,
+                    callback=callback)
     model.round_to_storage()
     return history

@@ -65,10 +65,11 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
 
     from ...codec import EncodeSettings, encode_fem, loads
     from ...geometry.curves import read_curves
-    from ...io.fem import barrier_segments, evaluate_fem, fem_curves, node_points, read_fem, sample_fem
+    from ...io.fem import read_fem
     from ...metrics import psnr
-    from ...train.fit import point_sampler
-    from ..baselines import train
+    from ...physics.fem import barrier_segments, evaluate_fem, fem_curves, node_points, sample_fem
+    from ...train.samplers import point_sampler
+    from ..baselines import fit_baseline
     from ..baselines.hashgrid import HashGrid
 
     if threads is not None:
@@ -97,7 +98,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
                                finest_resolution=int(2 * np.sqrt(len(solution.points))))
     grid.init_mean(torch.from_numpy(values.mean(axis=0)))
     every = max(1, hash_steps // 10)
-    train(grid, point_sampler(xy, values, batch_size), hash_steps, seed=seed, callback=lambda s, loss, p: (
+    fit_baseline(grid, point_sampler(xy, values, batch_size), hash_steps, seed=seed, callback=lambda s, loss, p: (
         click.echo(f"  hash grid step {s + 1}/{hash_steps}, batch PSNR {p:.2f} dB", err=True)
         if (s + 1) % every == 0 else None))
     hash_s = time.perf_counter() - clock

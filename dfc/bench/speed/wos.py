@@ -24,7 +24,7 @@ a factor of 7.6, 1,500 or 3,000 steps decaying to 1e-4 give 21.5. What remains i
 5e-6, mostly near the curves; the variance part shrinks with the pixel count, which is why the paper's
 resolution, 500, is the default.
 
-The MSE is taken over the pixels that no curve crosses (``dfc.train.fit.edge_pixels``): the raw mean estimates
+The MSE is taken over the pixels that no curve crosses (``dfc.geometry.pixels.edge_pixels``): the raw mean estimates
 a pixel's box average, which equals the centre value up to O(h⁴) for a harmonic function but not in a
 pixel cut by a discontinuity, where it blends both sides. The MSE over all pixels is printed too; there
 (a) also carries that blend.
@@ -96,12 +96,13 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
 
     from ...codec import SAMPLE_PIECE_REL
     from ...geometry.curves import read_curves, split_pieces
+    from ...geometry.pixels import edge_pixels
     from ...geometry.triangulate import triangulate
     from ...io.samples import SampleSet
     from ...physics.reference import solve_reference
     from ...physics.wos import Scene, grid_size, sample_scene
     from ...render import render
-    from ...train.fit import edge_pixels, fit_samples
+    from ...train.fit import fit_samples
 
     if threads is not None:
         torch.set_num_threads(threads)

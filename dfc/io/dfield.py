@@ -1,0 +1,82 @@
+"""``FieldModel`` ↔ ``.dfield``: the contents a fitted model writes (``to_contents``) and the model a file describes
+(``from_contents``, ``load``, ``loads``). The byte layout itself is ``dfc.io.container``'s."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import FormatError
+from ..field.model import FieldModel
+from .container import DfieldContents, decode_dfield, read_dfield
+
+__all__ = ["from_contents", "load", "loads", "to_contents"]
+
+_ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
+
+
+def to_contents(model: FieldModel, encoder: dict | None = None) -> DfieldContents:
+    """The ``.dfield`` contents of a fitted ``FieldModel`` (quantised values when its quantised mode is on).
+
+    encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
+    """
+    config = model.config()
+    header = {
+        "domain": [float(v) for v in model.field.mesh.domain],
+        "channels": list(config["channels"]),
+        "value_transform": config["transform"],
+        "times": config["times"],
+        "model": {k: config[k] for k in _ARCH_KEYS},
+        "encoder": dict(encoder or {}),
+    }
+    with torch.no_grad():
+        features = model.field.bank.detach().cpu().numpy().astype(np.float32)
+        mlp = {}
+        for i, lin in enumerate(model.decoder.linears()):
+            mlp[f"layers.{i}.weight"] = lin.weight.detach().cpu().numpy().astype(np.float32)
+            mlp[f"layers.{i}.bias"] = lin.bias.detach().cpu().numpy().astype(np.float32)
+    return DfieldContents(header=header, mesh=model.field.mesh, features=features, mlp=mlp)
+
+
+def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldModel:
+    """Rebuild the ``FieldModel`` a file describes. Raises ``FormatError`` when the header's model does
+    not match the stored features or weights."""
+    h = contents.header
+    arch = h["model"]
+    missing = [k for k in _ARCH_KEYS if k not in arch]
+    if missing:
+        raise FormatError(f"HEAD: model lacks {missing}")
+    config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": h["value_transform"], "channels": h["channels"],
+              "n_slices": int(contents.features.shape[0]), "times": h["times"]}
+    model = FieldModel.from_config(contents.mesh, config, device=device)
+    with torch.no_grad():
+        bank = torch.from_numpy(np.ascontiguousarray(contents.features))
+        if tuple(bank.shape) != tuple(model.field.bank.shape):
+            raise FormatError(f"FEAT: bank shape {tuple(bank.shape)}, the model needs {tuple(model.field.bank.shape)}")
+        model.field.bank.copy_(bank)
+        linears = model.decoder.linears()
+        expected = {f"layers.{i}.{p}" for i in range(len(linears)) for p in ("weight", "bias")}
+        if set(contents.mlp) != expected:
+            raise FormatError(f"MLPW: tensors {sorted(contents.mlp)}, the model needs {sorted(expected)}")
+        for i, lin in enumerate(linears):
+            for p in ("weight", "bias"):
+                w = torch.from_numpy(contents.mlp[f"layers.{i}.{p}"])
+                target = getattr(lin, p)
+                if tuple(w.shape) != tuple(target.shape):
+                    raise FormatError(f"MLPW: layers.{i}.{p} has shape {tuple(w.shape)}, expected {tuple(target.shape)}")
+                target.copy_(w)
+    model.header = h
+    model.eval()
+    return model
+
+
+def loads(blob: bytes, *, device: str = "cpu") -> FieldModel:
+    """``FieldModel`` from the bytes of a ``.dfield`` file (fully checked; ``FormatError`` if damaged)."""
+    return from_contents(decode_dfield(blob), device=device)
+
+
+def load(path: str | Path, *, device: str = "cpu") -> FieldModel:
+    """``FieldModel`` from a ``.dfield`` file: ``model(xy)``, ``model.features(xy)``, ``model.render(w, h)``."""
+    return from_contents(read_dfield(path), device=device)

@@ -1,0 +1,109 @@
+"""The training loop (DESIGN §6): every model dfc trains — fitted fields, the physics-informed solve and the
+baselines — goes through ``train``.
+
+``train(model, loss, sampler, schedule)`` runs Adam on ``model``'s parameters: each step draws a batch from
+``sampler``, evaluates ``loss`` on it and steps. The ``Schedule`` gives the learning rate (optionally decaying
+geometrically), the quantisation-aware final steps and how coarse-to-fine stages are run. The library never prints:
+progress goes to ``callback``. Metrics stay on the model's device during the run (no host round trip per step) and
+come back as floats at the end.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["BETAS", "Loss", "Sampler", "Schedule", "train"]
+
+BETAS = (0.9, 0.99)
+"""Adam's betas (DESIGN §6)."""
+
+Sampler = Callable[[int, torch.Generator], tuple]
+"""``sampler(step, generator) -> batch``: the batch for global step ``step``, drawn with ``generator``."""
+Loss = Callable[[nn.Module, tuple], tuple[Tensor, dict[str, Tensor]]]
+"""``loss(model, batch) -> (value, metrics)``: the scalar to minimise and named 0-dim metrics of the step, in the
+order the callback receives them."""
+
+
+@dataclass(frozen=True)
+class Schedule:
+    """Optimiser settings of one training run.
+
+    steps : optimiser steps (a model with coarse-to-fine ``stages`` splits them between its stages)
+    lr, final_lr : Adam's learning rate, decaying geometrically to ``final_lr`` over the run (None: constant)
+    betas : Adam's betas
+    qat_steps : the last ``qat_steps`` steps run with ``model.quantization = {"feature_bits": feature_bits}``
+        (quantised features, fp16 weights), which stays set on return so the model evaluates as stored
+    restart_stages : coarse-to-fine stages each restart the learning-rate decay and reseed the sampling
+        generator with ``seed + stage``; else the decay and the generator run straight through all stages
+    """
+
+    steps: int
+    lr: float = 1e-2
+    final_lr: float | None = None
+    betas: tuple[float, float] = BETAS
+    qat_steps: int = 0
+    feature_bits: int = 8
+    restart_stages: bool = False
+
+    def check(self) -> None:
+        """Raise ValueError on settings no run can have."""
+        if not isinstance(self.steps, int) or self.steps < 1:
+            raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
+        if not isinstance(self.qat_steps, int) or not 0 <= self.qat_steps <= self.steps:
+            raise ValueError(f"qat_steps must be an integer in [0, steps={self.steps}], got {self.qat_steps!r}")
+        if not self.lr > 0 or (self.final_lr is not None and not self.final_lr > 0):
+            raise ValueError(f"learning rates must be positive, got lr={self.lr}, final_lr={self.final_lr}")
+
+    def decay(self, length: int) -> float:
+        """Per-step factor of the learning rate over a run of ``length`` steps."""
+        return 1.0 if self.final_lr is None else (self.final_lr / self.lr) ** (1.0 / max(1, length - 1))
+
+
+def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *, seed: int = 0,
+          callback: Callable[..., None] | None = None) -> dict[str, list[float]]:
+    """Train ``model`` in place; return its metrics, one float per step, by name.
+
+    model : any module; ``model.quantization`` is set for quantisation-aware steps (``FieldModel``, baselines), and a
+        model with ``stages(steps) -> [n, …]`` and ``next_stage()`` trains coarse to fine: it grows between stages and
+        each stage gets a fresh Adam (its parameters are new)
+    loss, sampler : see ``Loss`` and ``Sampler``; the sampler's generator is a CPU ``torch.Generator`` seeded by
+        ``seed``
+    callback : ``callback(step, *metrics)`` after every step, metrics as 0-dim tensors (``float()`` reads one)
+    """
+    schedule.check()
+    stages = model.stages(schedule.steps) if hasattr(model, "stages") else [schedule.steps]
+    total = sum(stages)
+    qat_from = total - schedule.qat_steps if schedule.qat_steps else None
+    history: dict[str, list[Tensor]] = {}
+    generator = torch.Generator().manual_seed(seed)
+    step = 0
+    model.train()
+    for k, n in enumerate(stages):
+        if k:
+            model.next_stage()
+        if schedule.restart_stages:
+            generator = torch.Generator().manual_seed(seed + k)
+        start, length = (step, n) if schedule.restart_stages else (0, total)
+        decay = schedule.decay(length)
+        optimizer = torch.optim.Adam(model.parameters(), lr=schedule.lr, betas=schedule.betas)
+        for _ in range(n):
+            if step == qat_from:
+                model.quantization = {"feature_bits": schedule.feature_bits}
+            for group in optimizer.param_groups:
+                group["lr"] = schedule.lr * decay ** (step - start)
+            value, metrics = loss(model, sampler(step, generator))
+            optimizer.zero_grad(set_to_none=True)
+            value.backward()
+            optimizer.step()
+            for name, v in metrics.items():
+                history.setdefault(name, []).append(v.detach())
+            if callback is not None:
+                callback(step, *(values[-1] for values in history.values()))
+            step += 1
+    model.eval()
+    return {name: torch.stack(values).cpu().tolist() for name, values in history.items()}
+

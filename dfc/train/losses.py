@@ -1,0 +1,52 @@
+"""The data term of a fit: the model's predictions at a batch's points against the batch's targets."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+__all__ = ["LOSSES", "RELMSE_EPS", "DataLoss", "loss_value"]
+
+LOSSES = ("mse", "relmse")
+RELMSE_EPS = 0.01
+"""The ``+ 0.01`` in the relative MSE's denominator (paper §5): limits the weight of near-black values."""
+
+
+def loss_value(name: str, f: Tensor, g: Tensor) -> Tensor:
+    """Scalar loss of predictions f (B, C) against targets g (B, C).
+
+    ``"mse"``: mean (f − g)². ``"relmse"``: mean (f − g)² / (max(f, 0)ᵈ + 0.01)², where ᵈ marks a
+    detached value (no gradient through the denominator). Clamping at 0 keeps a negative prediction
+    from shrinking the denominator towards 0; for f ≥ 0 it is the paper's relative MSE.
+    """
+    if name == "mse":
+        return torch.mean((f - g) ** 2)
+    if name == "relmse":
+        return torch.mean((f - g) ** 2 / (f.detach().clamp_min(0) + RELMSE_EPS) ** 2)
+    raise ValueError(f"loss must be one of {LOSSES}, got {name!r}")
+
+
+class DataLoss:
+    """``loss`` of ``dfc.train.loop.train`` for data samplers (``dfc.train.samplers``).
+
+    A batch is ``(xy (B, 2), target (B, C))``, optionally with a third item: the batch's precomputed
+    ``field.query(xy)`` (``FieldModel.forward(query=…)``) or a dict of further model arguments (e.g. ``{"t": times}``).
+    Metrics: ``loss`` and ``psnr``, the batch's PSNR in dB with ``data_range`` (``dfc.metrics.data_range``).
+    """
+
+    def __init__(self, name: str = "mse", data_range: float = 1.0):
+        if name not in LOSSES:
+            raise ValueError(f"loss must be one of {LOSSES}, got {name!r}")
+        self.name, self.peak = name, float(data_range) ** 2
+
+    def __call__(self, model: nn.Module, batch: tuple) -> tuple[Tensor, dict[str, Tensor]]:
+        xy, target, *extra = batch
+        if not extra:
+            pred = model(xy)
+        elif isinstance(extra[0], dict):
+            pred = model(xy, **extra[0])
+        else:
+            pred = model(xy, query=extra[0])
+        value = loss_value(self.name, pred, target)
+        err = torch.mean((pred.detach() - target) ** 2).double()
+        return value, {"loss": value.detach(), "psnr": 10.0 * torch.log10(self.peak / err)}
