@@ -37,6 +37,39 @@ def pixel_offsets(spp: int) -> np.ndarray:
     return np.mod(0.5 + n * np.array([1 / g, 1 / g**2]), 1.0)
 
 
+def zoom_window(domain, center, zoom: float, *, inside: bool = True) -> tuple[float, float, float, float]:
+    """The window (x0, y0, x1, y1) of the domain's size divided by ``zoom`` around ``center`` (x, y): shifted to lie
+    inside the domain (so zoom 1 is the domain itself), or with ``inside=False`` centred on it, reaching past the
+    border if need be."""
+    x0, y0, x1, y1 = domain
+    w, h = (x1 - x0) / zoom, (y1 - y0) / zoom
+    cx, cy = float(center[0]), float(center[1])
+    if inside:
+        cx = min(max(cx, x0 + w / 2), x1 - w / 2)
+        cy = min(max(cy, y0 + h / 2), y1 - h / 2)
+    return (cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
+
+
+def window_shape(window, longer: int) -> tuple[int, int]:
+    """(width, height) in pixels of a window rendered with ``longer`` pixels along its longer side."""
+    w, h = window[2] - window[0], window[3] - window[1]
+    s = longer / max(w, h)
+    return max(1, round(w * s)), max(1, round(h * s))
+
+
+def window_points(window, width: int, height: int, spp: int = 1, *, rows: tuple[int, int] | None = None) -> np.ndarray:
+    """(h · width · spp, 2) float64 sample points of rows ``[r0, r1)`` (default all, h = r1 − r0) of a
+    ``width × height`` render of ``window``: row-major, a pixel's ``spp`` points (``pixel_offsets``) adjacent."""
+    x0, y0, x1, y1 = window
+    r0, r1 = rows or (0, height)
+    off = pixel_offsets(spp)
+    xs = x0 + (np.arange(width)[:, None] + off[None, :, 0]) * ((x1 - x0) / width)  # (W, spp)
+    ys = y0 + (np.arange(r0, r1)[:, None] + off[None, :, 1]) * ((y1 - y0) / height)  # (h, spp)
+    X = np.broadcast_to(xs[None], (r1 - r0, width, spp))
+    Y = np.broadcast_to(ys[:, None], (r1 - r0, width, spp))
+    return np.stack([X.ravel(), Y.ravel()], axis=1)
+
+
 def row_blocks(
     model, width: int, height: int, window=None, *, spp: int = 1, t=None, max_points: int = MAX_POINTS
 ) -> Iterator[tuple[int, np.ndarray]]:
@@ -46,18 +79,13 @@ def row_blocks(
     """
     if width < 1 or height < 1:
         raise ValueError(f"output size must be at least 1×1, got {width}×{height}")
-    x0, y0, x1, y1 = check_window(window, model.field.mesh.domain)
-    offsets = pixel_offsets(spp)
+    window = check_window(window, model.field.mesh.domain)
     rows = max(1, min(height, max_points // (width * spp)))
     device = model.field.bank.device
-    xs = x0 + (np.arange(width)[:, None] + offsets[None, :, 0]) * ((x1 - x0) / width)  # (W, spp)
     with torch.no_grad():
         for r0 in range(0, height, rows):
             r1 = min(height, r0 + rows)
-            ys = y0 + (np.arange(r0, r1)[:, None] + offsets[None, :, 1]) * ((y1 - y0) / height)  # (h, spp)
-            X = np.broadcast_to(xs[None], (r1 - r0, width, spp))
-            Y = np.broadcast_to(ys[:, None], (r1 - r0, width, spp))
-            xy = torch.from_numpy(np.stack([X.ravel(), Y.ravel()], axis=1)).to(device)
+            xy = torch.from_numpy(window_points(window, width, height, spp, rows=(r0, r1))).to(device)
             vals = model(xy, t) if t is not None else model(xy)
             block = vals.float().reshape(r1 - r0, width, spp, -1).mean(dim=2)
             yield r0, block.cpu().numpy()

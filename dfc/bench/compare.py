@@ -10,15 +10,12 @@ itself). A window is rendered at ``render × render·aspect`` pixels, each the m
 same points, the reference its PSNR is measured against. For a user image only zoom 1 has a reference:
 the method rendered at the image's own resolution against the image; larger zooms get PSNR ``None``.
 
-PSNR uses data range 1 for LDR inputs (values in [0, 1]) and the input's span otherwise (as
-``dfc.codec`` does). Decode throughput is points per second of one batched forward pass, best of
+PSNR uses ``dfc.metrics.data_range`` of the input (as ``dfc.codec`` does). Decode throughput is points per second of one batched forward pass, best of
 ``THROUGHPUT_REPEATS``. The library never prints: progress goes through ``progress(message)``.
 """
 
 from __future__ import annotations
 
-import io
-import json
 import math
 import time
 from collections.abc import Callable
@@ -30,10 +27,14 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from ..render import values_at
+from ..metrics import data_range as signal_range
+from ..render import values_at, window_points, window_shape, zoom_window
+from .report import contact_sheet as contact_sheet_grid
+from .report import display, write_report
+from .report import markdown_table as table
 
 __all__ = ["METHODS", "ZOOMS", "BenchResult", "BenchSettings", "contact_sheet", "markdown_table", "run_bench",
-           "run_scene", "throughput", "window_points", "write_outputs", "zoom_window"]
+           "run_scene", "throughput", "write_outputs"]
 
 ZOOMS = (1, 10, 33, 100)
 METHODS = ("dfc", "hashgrid", "relu", "raster")
@@ -41,10 +42,6 @@ EVAL_BLOCK = 1 << 16
 """Points per forward pass when rendering windows."""
 THROUGHPUT_POINTS = 1 << 16
 THROUGHPUT_REPEATS = 3
-TILE = 192
-"""Side of a contact-sheet tile, pixels."""
-LABEL_WIDTH = 110
-"""Width of the contact sheet's row-label column, pixels."""
 
 
 @dataclass
@@ -87,36 +84,7 @@ class BenchSettings:
                 raise InputError(f"{key} must be ≥ 1, got {getattr(self, key)}")
 
 
-# ----------------------------------------------------------------------------------------------- geometry
-def zoom_window(domain, probe, zoom: float) -> tuple[float, float, float, float]:
-    """The window (x0, y0, x1, y1) of size domain / zoom centred on ``probe``, shifted into the domain."""
-    x0, y0, x1, y1 = domain
-    w, h = (x1 - x0) / zoom, (y1 - y0) / zoom
-    cx = min(max(float(probe[0]), x0 + w / 2), x1 - w / 2)
-    cy = min(max(float(probe[1]), y0 + h / 2), y1 - h / 2)
-    return (cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2)
-
-
-def window_shape(window, longer: int) -> tuple[int, int]:
-    """(width, height) in pixels of a window rendered with ``longer`` pixels along its longer side."""
-    w, h = window[2] - window[0], window[3] - window[1]
-    s = longer / max(w, h)
-    return max(1, round(w * s)), max(1, round(h * s))
-
-
-def window_points(window, width: int, height: int, spp: int) -> np.ndarray:
-    """(height · width · spp, 2) float64 sample points of a window, row-major, a pixel's spp points adjacent."""
-    from ..render import pixel_offsets
-
-    x0, y0, x1, y1 = window
-    off = pixel_offsets(spp)
-    xs = x0 + (np.arange(width)[:, None] + off[None, :, 0]) * ((x1 - x0) / width)  # (W, spp)
-    ys = y0 + (np.arange(height)[:, None] + off[None, :, 1]) * ((y1 - y0) / height)  # (H, spp)
-    X = np.broadcast_to(xs[None], (height, width, spp))
-    Y = np.broadcast_to(ys[:, None], (height, width, spp))
-    return np.stack([X.ravel(), Y.ravel()], axis=1)
-
-
+# ----------------------------------------------------------------------------------------------- windows
 def _pixel_mean(values: np.ndarray, width: int, height: int, spp: int) -> np.ndarray:
     return values.reshape(height, width, spp, -1).mean(axis=2).astype(np.float32)
 
@@ -194,7 +162,7 @@ def _fit_baseline(name: str, pixels, domain, channels, n_bytes: int, settings: B
     model.init_mean(torch.from_numpy(pixels.reshape(-1, pixels.shape[2]).mean(axis=0)))
     sampler = image_sampler(pixels, domain, settings.batch_size, device=settings.device, seed=settings.seed)
     fit_baseline(model, sampler, settings.steps, loss=loss, seed=settings.seed, data_range=data_range,
-          callback=_step_progress(name, settings, progress))
+                 callback=_step_progress(name, settings, progress))
     details = model.describe()
     if list(model.parameters()):  # what zstd would save on the fp16 parameters
         import zstandard
@@ -246,52 +214,18 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     x0, y0, x1, y1 = domain
     if len(probes) == 0 or not np.all((probes >= [x0, y0]) & (probes <= [x1, y1])):
         raise InputError(f"probes must be points inside the domain {domain}, got {probes.tolist()}")
-    hdr = float(pixels.max()) > 1.0
-    data_range = max(float(pixels.max() - pixels.min()), 1e-12) if hdr else 1.0
-    loss = "relmse" if hdr else "mse"
-    models: dict[str, nn.Module] = {}
-    record: dict[str, dict] = {}
-    blob = None
-    n_bytes = settings.target_bytes
-    for method in [m for m in METHODS if m in settings.methods]:  # dfc first: it sets the budget
-        progress(f"{method}: fitting" + (f" at {n_bytes} bytes" if method != "dfc" else ""))
-        clock = time.perf_counter()
-        if method == "dfc":
-            model, size, details = _fit_dfc(pixels, curves, channels, settings, progress)
-            blob = details.pop("blob")
-            n_bytes = size
-        else:
-            model, details = _fit_baseline(method, pixels, domain, channels, n_bytes, settings, loss, data_range,
-                                           progress)
-            size = model.stored_bytes()
-        model.eval()
-        models[method] = model
-        record[method] = {"bytes": int(size), "fit_s": time.perf_counter() - clock,
-                          "points_per_s": throughput(model, domain, settings.device, settings.seed), **details}
+    data_range = signal_range(pixels)
+    models, record, blob = _fit_all(pixels, curves, channels, settings, data_range, progress)
     windows = [[zoom_window(domain, p, z) for z in settings.zooms] for p in probes]
-    tiles: dict[str, list[list[np.ndarray | None]]] = {k: [] for k in ["reference", *models]}
-    psnr: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models}
-    cache: dict[tuple, tuple[dict, dict]] = {}
-    for k, row in enumerate(windows):
-        for key in tiles:
-            tiles[key].append([])
-        for z, window in zip(settings.zooms, row):
-            progress(f"probe {k + 1}/{len(probes)}, zoom {_zkey(z)}: rendering")
-            if window not in cache:
-                cache[window] = _measure(models, window, domain, pixels, reference, settings, data_range)
-            renders, scores = cache[window]
-            for key in tiles:
-                tiles[key][-1].append(renders.get(key))
-            for m in models:
-                psnr[m][_zkey(z)].append(scores[m])
+    tiles, psnr = _measure_all(models, windows, pixels, domain, reference, settings, data_range, progress)
     for m in models:
         record[m]["psnr"] = psnr[m]
     results = {
         "input": name,
         "reference": "analytic" if reference is not None else "input image (zoom 1 only; larger zooms unmeasured)",
         "data_range": data_range,
-        "hdr": hdr,
-        "budget_bytes": int(n_bytes),
+        "hdr": float(pixels.max()) > 1.0,
+        "budget_bytes": int(record["dfc"]["bytes"] if "dfc" in record else settings.target_bytes),
         "zooms": [float(z) for z in settings.zooms],
         "probes": probes.tolist(),
         "windows": [[list(w) for w in row] for row in windows],
@@ -299,6 +233,53 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
         "methods": record,
     }
     return BenchResult(results, tiles, blob)
+
+
+def _fit_all(pixels, curves, channels, settings: BenchSettings, data_range: float, progress):
+    """Every method fitted: (models {method: module}, record {method: bytes, fit_s, points_per_s, details},
+    dfc's file or None). dfc runs first: its file's size is the others' budget."""
+    loss = "relmse" if float(pixels.max()) > 1.0 else "mse"
+    models: dict[str, nn.Module] = {}
+    record: dict[str, dict] = {}
+    blob = None
+    n_bytes = settings.target_bytes
+    for method in [m for m in METHODS if m in settings.methods]:
+        progress(f"{method}: fitting" + (f" at {n_bytes} bytes" if method != "dfc" else ""))
+        clock = time.perf_counter()
+        if method == "dfc":
+            model, size, details = _fit_dfc(pixels, curves, channels, settings, progress)
+            blob = details.pop("blob")
+            n_bytes = size
+        else:
+            model, details = _fit_baseline(method, pixels, curves.domain, channels, n_bytes, settings, loss,
+                                           data_range, progress)
+            size = model.stored_bytes()
+        model.eval()
+        models[method] = model
+        record[method] = {"bytes": int(size), "fit_s": time.perf_counter() - clock,
+                          "points_per_s": throughput(model, curves.domain, settings.device, settings.seed), **details}
+    return models, record, blob
+
+
+def _measure_all(models, windows, pixels, domain, reference, settings: BenchSettings, data_range: float, progress):
+    """(tiles {key: [probe][zoom] render or None}, psnr {method: {zoom key: [dB or None per probe]}}) of every
+    window (``windows[probe][zoom]``); a window shared by several probes (zoom 1) is rendered once."""
+    tiles: dict[str, list[list[np.ndarray | None]]] = {k: [] for k in ["reference", *models]}
+    psnr: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models}
+    cache: dict[tuple, tuple[dict, dict]] = {}
+    for k, row in enumerate(windows):
+        for key in tiles:
+            tiles[key].append([])
+        for z, window in zip(settings.zooms, row):
+            progress(f"probe {k + 1}/{len(windows)}, zoom {_zkey(z)}: rendering")
+            if window not in cache:
+                cache[window] = _measure(models, window, domain, pixels, reference, settings, data_range)
+            renders, scores = cache[window]
+            for key in tiles:
+                tiles[key][-1].append(renders.get(key))
+            for m in models:
+                psnr[m][_zkey(z)].append(scores[m])
+    return tiles, psnr
 
 
 def run_scene(scene, settings: BenchSettings, *, probes=None,
@@ -352,82 +333,36 @@ def _measure(models, window, domain, pixels, reference, settings: BenchSettings,
 def markdown_table(results: dict) -> str:
     """``results.md``: one row per method — bytes, mean PSNR over the probes per zoom, decode throughput."""
     zooms = [_zkey(z) for z in results["zooms"]]
-    lines = [f"# dfc bench: {results['input']}", "",
-             f"Reference: {results['reference']}. PSNR in dB (data range {results['data_range']:.4g}), "
-             f"mean over {len(results['probes'])} probe(s); budget {results['budget_bytes']} bytes.", "",
-             "| method | bytes | " + " | ".join(f"{z}×" for z in zooms) + " | points/s |",
-             "|---|---:|" + "---:|" * len(zooms) + "---:|"]
+    rows = []
     for m, r in results["methods"].items():
         cells = []
         for z in zooms:
             vals = [v for v in r["psnr"][z] if v is not None]
             cells.append(f"{np.mean(vals):.2f}" if vals else "–")
-        lines.append(f"| {m} | {r['bytes']} | " + " | ".join(cells) + f" | {r['points_per_s']:.3g} |")
-    return "\n".join(lines) + "\n"
-
-
-def _display(tile: np.ndarray, hdr: bool) -> np.ndarray:
-    """(h, w, C) linear -> (h, w, 3) uint8 sRGB (Reinhard tone map first for HDR; 1 channel as grey)."""
-    from ..io.image import linear_to_srgb, tonemap
-
-    v = tile[..., :3] if tile.shape[2] >= 3 else np.repeat(tile[..., :1], 3, axis=2)
-    v = tonemap(v) if hdr else v
-    return np.round(255 * linear_to_srgb(np.clip(v, 0.0, 1.0))).astype(np.uint8)
+        rows.append([m, str(r["bytes"]), *cells, f"{r['points_per_s']:.3g}"])
+    notes = (f"Reference: {results['reference']}. PSNR in dB (data range {results['data_range']:.4g}), "
+             f"mean over {len(results['probes'])} probe(s); budget {results['budget_bytes']} bytes.")
+    return table(f"dfc bench: {results['input']}", notes, ["method", "bytes", *(f"{z}×" for z in zooms), "points/s"],
+                 rows)
 
 
 def contact_sheet(result: BenchResult) -> bytes:
     """PNG bytes: for each probe, a block of rows (reference, then each method) by columns (zooms)."""
-    from PIL import Image as PILImage
-    from PIL import ImageDraw
-
     res = result.results
-    keys = ["reference", *res["methods"]]
-    n_zoom, n_probe = len(res["zooms"]), len(res["probes"])
-    sheet = PILImage.new("RGB", (LABEL_WIDTH + n_zoom * TILE, (n_probe * len(keys)) * TILE + 20), (40, 40, 40))
-    draw = ImageDraw.Draw(sheet)
-    for c, z in enumerate(res["zooms"]):
-        draw.text((LABEL_WIDTH + c * TILE + 4, 4), f"{_zkey(z)}x", fill=(255, 255, 255))
-    for p in range(n_probe):
-        for r, key in enumerate(keys):
-            top = 20 + (p * len(keys) + r) * TILE
-            draw.text((4, top + 4), f"probe {p + 1}\n{key}", fill=(255, 255, 255))
-            for c in range(n_zoom):
-                tile = result.tiles[key][p][c]
-                if tile is None:
-                    continue
-                im = PILImage.fromarray(_display(tile, res["hdr"])).resize((TILE, TILE), PILImage.NEAREST)
-                sheet.paste(im, (LABEL_WIDTH + c * TILE, top))
-                if key != "reference":
-                    v = res["methods"][key]["psnr"][_zkey(res["zooms"][c])][p]
-                    if v is not None:
-                        draw.text((LABEL_WIDTH + c * TILE + 4, top + TILE - 14), f"{v:.1f} dB", fill=(255, 255, 0))
-    buf = io.BytesIO()
-    sheet.save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def _finite(obj):
-    """``obj`` with every non-finite float (an infinite PSNR of identical rasters) replaced by None."""
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
+    rows = []
+    for p in range(len(res["probes"])):
+        for key in ["reference", *res["methods"]]:
+            tiles = [None if t is None else display(t, res["hdr"]) for t in result.tiles[key][p]]
+            captions = [None] * len(tiles)
+            if key != "reference":
+                captions = [None if v is None else f"{v:.1f} dB"
+                            for v in (res["methods"][key]["psnr"][_zkey(z)][p] for z in res["zooms"])]
+            rows.append((f"probe {p + 1}\n{key}", tiles, captions))
+    return contact_sheet_grid([f"{_zkey(z)}x" for z in res["zooms"]], rows)
 
 
 def write_outputs(result: BenchResult, directory: str | Path) -> list[Path]:
     """Write ``results.json``, ``results.md``, ``contact.png`` (and ``dfc.dfield`` when dfc ran) into
-    ``directory`` (created if missing), each atomically. Returns the paths written."""
-    from ..io.atomic import write_bytes_atomic
-
-    out = Path(directory)
-    out.mkdir(parents=True, exist_ok=True)
-    files = {"results.json": json.dumps(_finite(result.results), indent=2, allow_nan=False).encode(),
-             "results.md": markdown_table(result.results).encode(), "contact.png": contact_sheet(result)}
-    if result.blob is not None:
-        files["dfc.dfield"] = result.blob
-    for name, data in files.items():
-        write_bytes_atomic(out / name, data)
-    return [out / name for name in files]
+    ``directory`` (``dfc.bench.report.write_report``). Returns the paths written."""
+    return write_report(directory, result.results, markdown_table(result.results), contact_sheet(result),
+                        result.blob)

@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 
 from ..geometry.curves import Curves, elevate
+from ..geometry.plane import cross
 
 FLATTEN = 512
 
@@ -53,9 +54,7 @@ def subtended(xy: np.ndarray, polyline: np.ndarray, chunk: int = 1 << 14) -> np.
     for s in range(0, len(xy), chunk):
         d = polyline[None, :, :] - xy[s : s + chunk, None, :]  # (n, M, 2)
         a, b = d[:, :-1], d[:, 1:]
-        cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
-        dot = (a * b).sum(-1)
-        out[s : s + chunk] = np.arctan2(cross, dot).sum(-1) / (2 * np.pi)
+        out[s : s + chunk] = np.arctan2(cross(a, b), (a * b).sum(-1)).sum(-1) / (2 * np.pi)
     return out
 
 

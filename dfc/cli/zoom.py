@@ -8,13 +8,6 @@ from .options import POINT, SIZE, check_device, check_output, check_size, defaul
 from .output import check_time, render_to_file
 
 
-def zoom_window(domain, center, zoom: float) -> tuple[float, float, float, float]:
-    """Window (x0, y0, x1, y1) of width and height domain size / ``zoom`` centred on ``center``."""
-    x0, y0, x1, y1 = domain
-    hw, hh = 0.5 * (x1 - x0) / zoom, 0.5 * (y1 - y0) / zoom
-    return center[0] - hw, center[1] - hh, center[0] + hw, center[1] + hh
-
-
 @click.command()
 @click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False))
 @click.option("--center", required=True, type=POINT, help="Centre X,Y of the window, in domain units.")
@@ -32,6 +25,7 @@ def command(input_path, center, zoom, output, size, spp, full_float, t, device, 
     direction. The centre must lie inside the domain; the window may reach past its border (values there are those
     at the nearest border point)."""
     from ..codec import load
+    from ..render import zoom_window
 
     check_output(output)
     check_size(size)
@@ -39,7 +33,7 @@ def command(input_path, center, zoom, output, size, spp, full_float, t, device, 
     domain = model.field.mesh.domain
     if not (domain[0] <= center[0] <= domain[2] and domain[1] <= center[1] <= domain[3]):
         raise click.BadParameter(f"{center} is outside the domain {tuple(domain)}", param_hint="'--center'")
-    window = zoom_window(domain, center, zoom)
+    window = zoom_window(domain, center, zoom, inside=False)
     size = size or default_size(window, domain)
     render_to_file(model, output, size, window, spp=spp, half=not full_float, t=check_time(model, t), quiet=quiet)
     click.echo(f"wrote {output}: {size[0]}x{size[1]}, {zoom:g}x zoom, window {tuple(round(v, 6) for v in window)}")

@@ -23,6 +23,7 @@ import torch
 from torch import nn
 
 from ..geometry.mesh import Mesh
+from ..geometry.plane import cross
 from .layout import Layout
 from .side import chord_frames, in_sliver
 
@@ -97,11 +98,11 @@ class Interpolator(nn.Module):
             c = 3 * tri.index_select(0, q) + i
             d = xy.index_select(0, q) - self.corner_pos.index_select(0, c)
             e = self.corner_edge.index_select(0, c)
-            cross = e[:, 0] * d[:, 1] - e[:, 1] * d[:, 0]
+            turn = cross(e, d)
             dot = e[:, 0] * d[:, 0] + e[:, 1] * d[:, 1]
             at_vertex = (d == 0).all(1)
             # atan2(0, 0) has a NaN gradient: a query on the vertex is at angle 0 from the edge v -> next.
-            psi = torch.atan2(torch.where(at_vertex, 0.0, cross), torch.where(at_vertex, 1.0, dot))
+            psi = torch.atan2(torch.where(at_vertex, 0.0, turn), torch.where(at_vertex, 1.0, dot))
             psi = torch.minimum(psi.clamp(min=0.0), self.corner_beta.index_select(0, c))
             theta = self.corner_theta.index_select(0, c)
             t = torch.minimum(self.corner_alpha.index_select(0, c) + psi, theta) / theta

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..errors import MeshError
 from ..geometry.mesh import Mesh
+from ..geometry.plane import cross
 
 __all__ = ["Layout", "build_layout"]
 
@@ -122,7 +123,7 @@ def build_layout(mesh: Mesh) -> Layout:
     e_n = verts[n] - verts[v]
     e_p = verts[p] - verts[v]
     ang_n = _angle(e_n)
-    beta = np.arctan2(e_n[..., 0] * e_p[..., 1] - e_n[..., 1] * e_p[..., 0], np.sum(e_n * e_p, axis=-1))
+    beta = np.arctan2(cross(e_n, e_p), np.sum(e_n * e_p, axis=-1))
     bisector = np.mod(ang_n + 0.5 * beta + np.pi, TWO_PI) - np.pi
 
     # Sector of each corner: the last half-edge at v with angle <= bisector (cyclically).

@@ -20,6 +20,7 @@ import torch
 from torch import nn
 
 from ..errors import MeshError
+from ..geometry.plane import cross
 
 __all__ = ["PointLocator", "CELLS_PER_TRIANGLE"]
 
@@ -90,7 +91,7 @@ class PointLocator(nn.Module):
         origin = np.array([x0, y0])
         tri, cell = _cell_pairs(v0, v1, v2, origin, h, (ny, nx))
         e1, e2 = v1 - v0, v2 - v0
-        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        det = cross(e1, e2)
         if np.any(det <= 0):
             bad = int(np.flatnonzero(det <= 0)[0])
             raise MeshError(f"point location: triangle {bad} is degenerate or clockwise")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .plane import cross
 from .tolerances import tol
 
 __all__ = [
@@ -159,10 +160,6 @@ def _power_terms(cp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return p1 - p0, p2 - 2.0 * p1 + p0, p3 - 3.0 * p2 + 3.0 * p1 - p0
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-
-
 def inflections(cp) -> np.ndarray:
     """Inflection parameters: roots of cross(B'(t), B''(t)) strictly inside (0, 1).
 
@@ -173,7 +170,7 @@ def inflections(cp) -> np.ndarray:
     cp = _as_cp(cp)
     a, b, c = _power_terms(cp)
     # cross(a + 2bt + ct², b + ct) = cross(a, b) + cross(a, c) t + cross(b, c) t²
-    k0, k1, k2 = _cross(a, b), _cross(a, c), _cross(b, c)
+    k0, k1, k2 = cross(a, b), cross(a, c), cross(b, c)
     scale = np.maximum.reduce([np.abs(a).sum(1), np.abs(b).sum(1), np.abs(c).sum(1)]) ** 2
     flat = np.maximum.reduce([np.abs(k0), np.abs(k1), np.abs(k2)]) <= tol.distinct_rel * scale
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -246,9 +243,9 @@ def tangent_apex(cp) -> np.ndarray:
     """
     cp = _as_cp(cp)
     t0, t1 = end_tangents(cp)
-    den = _cross(t0, t1)
+    den = cross(t0, t1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        s = _cross(cp[:, 3] - cp[:, 0], t1) / den
+        s = cross(cp[:, 3] - cp[:, 0], t1) / den
     x = cp[:, 0] + s[:, None] * t0
     x[~(np.abs(den) > tol.distinct_rel)] = np.nan
     return x
@@ -257,7 +254,7 @@ def tangent_apex(cp) -> np.ndarray:
 def turning_angle(cp) -> np.ndarray:
     """Angle between the end tangents, in radians in [0, π]: cp (N, 4, 2) -> (N,) float64 (NaN if degenerate)."""
     t0, t1 = end_tangents(cp)
-    return np.arctan2(np.abs(_cross(t0, t1)), (t0 * t1).sum(axis=1))
+    return np.arctan2(np.abs(cross(t0, t1)), (t0 * t1).sum(axis=1))
 
 
 def bounding_boxes(cp) -> np.ndarray:
@@ -279,7 +276,7 @@ def total_turning(cp, samples: int = 16) -> np.ndarray:
     t = np.broadcast_to(np.linspace(0.0, 1.0, samples + 1), (cp.shape[0], samples + 1))
     d = derivative(cp, t)
     d[:, 0], d[:, -1] = end_tangents(cp)
-    steps = np.arctan2(_cross(d[:, :-1], d[:, 1:]), (d[:, :-1] * d[:, 1:]).sum(axis=-1))
+    steps = np.arctan2(cross(d[:, :-1], d[:, 1:]), (d[:, :-1] * d[:, 1:]).sum(axis=-1))
     with np.errstate(invalid="ignore"):
         interior_zero = ~(np.hypot(d[:, 1:-1, 0], d[:, 1:-1, 1]) > 0.0).all(axis=1)
     out = np.abs(steps).sum(axis=1)
@@ -320,10 +317,10 @@ def self_intersections(cp) -> np.ndarray:
     cp = _as_cp(cp)
     a, b, c = _power_terms(cp)
     A, B, C = c, 3.0 * b, 3.0 * a
-    den = _cross(A, B)
+    den = cross(A, B)
     scale = np.maximum.reduce([np.abs(A).sum(1), np.abs(B).sum(1), np.abs(C).sum(1)]) ** 2
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # den ≈ 0 rows are dropped below
-        sigma = -_cross(A, C) / den
+        sigma = -cross(A, C) / den
         pi = sigma * sigma + (A * (B * sigma[:, None] + C)).sum(1) / (A * A).sum(1)
         root = np.sqrt(sigma * sigma - 4.0 * pi)
     out = np.stack([(sigma - root) / 2.0, (sigma + root) / 2.0], axis=1)
@@ -425,10 +422,10 @@ def refine_intersections(cp_a, cp_b, s, t, iterations: int = 40) -> tuple[np.nda
     for _ in range(iterations):
         f = evaluate(cp_a, s) - evaluate(cp_b, t)
         da, db = derivative(cp_a, s), derivative(cp_b, t)
-        det = _cross(db, da)  # det of [da, -db]
+        det = cross(db, da)  # det of [da, -db]
         with np.errstate(divide="ignore", invalid="ignore"):
-            ds = _cross(f, db) / det  # Cramer on da ds - db dt = -f
-            dt = _cross(f, da) / det
+            ds = cross(f, db) / det  # Cramer on da ds - db dt = -f
+            dt = cross(f, da) / det
         ok = np.isfinite(ds) & np.isfinite(dt)
         s = np.clip(np.where(ok, s + ds, s), 0.0, 1.0)
         t = np.clip(np.where(ok, t + dt, t), 0.0, 1.0)

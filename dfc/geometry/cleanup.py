@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 from ..errors import CurveError
 from . import bezier as bz
 from .curves import DEGREE_LINE, Curves, elevate
+from .plane import cross
 from .tolerances import Tolerances, tol
 
 __all__ = ["clean"]
@@ -301,7 +302,7 @@ def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float):
     pa, pb, s, t = pa[first], pb[first], s[first], t[first]
     ta, tb = bz.derivative(p.cp[pa], s), bz.derivative(p.cp[pb], t)
     with np.errstate(divide="ignore", invalid="ignore"):
-        sine = np.abs(ta[:, 0] * tb[:, 1] - ta[:, 1] * tb[:, 0]) / (np.hypot(*ta.T) * np.hypot(*tb.T))
+        sine = np.abs(cross(ta, tb)) / (np.hypot(*ta.T) * np.hypot(*tb.T))
     check = ~(sine > _OVERLAP_SIN)
     drop = np.zeros(len(s), dtype=bool)
     drop[check] = _coincide(p.cp[pa[check]], s[check], p.cp[pb[check]], t[check], snap)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import MeshError
+from .plane import cross
 from .tolerances import tol
 
 
@@ -96,7 +97,7 @@ class Mesh:
             raise MeshError(f"mesh: vertex {i} at {_xy(v[i])} belongs to no triangle")
 
         p = v[t]  # (T, 3, 2)
-        area2 = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+        area2 = cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         longest = np.sqrt((np.diff(p[:, [0, 1, 2, 0]], axis=1) ** 2).sum(axis=2).max(axis=1))
         bad = area2 <= tol.degenerate_rel * diag * longest
         if bad.any():
@@ -278,7 +279,7 @@ def min_side_distance(cp: np.ndarray, p: np.ndarray, q: np.ndarray, *, derivativ
     d = q - p
     d = d / np.hypot(d[:, 0], d[:, 1])[:, None]
     # power basis of B(t) - p: c0 + c1 t + c2 t^2 + c3 t^3
-    c = [_cross(d, p0 - p), _cross(d, 3.0 * (p1 - p0)), _cross(d, 3.0 * (p2 - 2.0 * p1 + p0)), _cross(d, p3 - 3.0 * p2 + 3.0 * p1 - p0)]
+    c = [cross(d, p0 - p), cross(d, 3.0 * (p1 - p0)), cross(d, 3.0 * (p2 - 2.0 * p1 + p0)), cross(d, p3 - 3.0 * p2 + 3.0 * p1 - p0)]
     if derivative:
         c = [c[1], 2.0 * c[2], 3.0 * c[3], np.zeros_like(c[3])]
     # stationary points: c1 + 2 c2 t + 3 c3 t^2 = 0
@@ -300,10 +301,6 @@ def _contains(sorted_keys: np.ndarray, keys: np.ndarray) -> np.ndarray:
         return np.zeros(len(keys), dtype=bool)
     pos = np.minimum(np.searchsorted(sorted_keys, keys), len(sorted_keys) - 1)
     return sorted_keys[pos] == keys
-
-
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 def _shape_ok(shape: tuple, want: tuple) -> bool:

@@ -32,6 +32,7 @@ from . import bezier
 from .cleanup import clean
 from .curves import Curves, split_pieces
 from .mesh import Mesh, min_side_distance
+from .plane import cross
 from .tolerances import tol
 
 __all__ = ["triangulate", "DEFAULT_TRIANGLES"]
@@ -304,7 +305,7 @@ def _separation_failure(cp, piece, c, oi, oj) -> str:
         for f in range(2):
             same = (ends[e][oi] == ends[f][oj]).all(axis=1)
             u, v = away[e][oi], away[f][oj]
-            tangent = same & (np.abs(_cross(u, v)) < np.sqrt(tol.distinct_rel)) & ((u * v).sum(axis=1) > 0)
+            tangent = same & (np.abs(cross(u, v)) < np.sqrt(tol.distinct_rel)) & ((u * v).sum(axis=1) > 0)
             if tangent.any():
                 k = int(np.flatnonzero(tangent)[0])
                 return (
@@ -319,14 +320,14 @@ def _separation_failure(cp, piece, c, oi, oj) -> str:
 
 def _ccw_triangles(a, x, b) -> np.ndarray:
     """Triangles (A, X, B) as counter-clockwise corner stacks: (N, 2) each -> (N, 3, 2)."""
-    left = _cross(b - a, x - a) > 0
+    left = cross(b - a, x - a) > 0
     return np.where(left[:, None, None], np.stack([a, b, x], axis=1), np.stack([a, x, b], axis=1))
 
 
 def _signed(p, q, pts) -> np.ndarray:
     """Signed distances of pts (N, K, 2) to the lines p -> q ((N, 2) each), left positive -> (N, K)."""
     d = q - p
-    return _cross(d[:, None], pts - p[:, None]) / np.hypot(*d.T)[:, None]
+    return cross(d[:, None], pts - p[:, None]) / np.hypot(*d.T)[:, None]
 
 
 def _signed_edges(tri, p) -> np.ndarray:
@@ -509,7 +510,7 @@ def _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, cur
         _check_constraints_kept(t, pts, domain)
         v, tri = _arrays(t)
         p = v[tri]
-        flip = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
+        flip = cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
         tri[flip] = tri[flip][:, ::-1]
         holder = _chord_triangles(tri, chords, cp, len(v))
         corner = v[tri[holder]]
@@ -562,7 +563,7 @@ def _chord_triangles(tri, chords, cp, n) -> np.ndarray:
     order = np.argsort(key)
     a, b = cp[:, 0], cp[:, 3]
     mid = bezier.evaluate(cp, np.full(len(cp), 0.5))
-    left = _cross(b - a, mid - a) > 0
+    left = cross(b - a, mid - a) > 0
     want = np.where(left, chords[:, 0] * np.int64(n) + chords[:, 1], chords[:, 1] * np.int64(n) + chords[:, 0])
     pos = np.minimum(np.searchsorted(key[order], want), len(key) - 1)
     found = key[order][pos] == want
@@ -570,10 +571,6 @@ def _chord_triangles(tri, chords, cp, n) -> np.ndarray:
         c = int(np.flatnonzero(~found)[0])
         raise MeshError(f"triangulate: the chord of the curved piece at {_xy(a[c])} - {_xy(b[c])} is not a mesh edge")
     return order[pos] // 3
-
-
-def _cross(u, v):
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 def _xy(p) -> str:

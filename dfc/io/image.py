@@ -108,7 +108,7 @@ def tonemap(v: np.ndarray) -> np.ndarray:
     return v / (1.0 + v)
 
 
-def _to_display8(pixels: np.ndarray, hdr: bool) -> np.ndarray:
+def display8(pixels: np.ndarray, hdr: bool) -> np.ndarray:
     """(..., C) linear float → (..., C) uint8 display values; the last channel is alpha when C is 2 or 4."""
     n_colour = pixels.shape[-1] - (1 if pixels.shape[-1] in (2, 4) else 0)
     out = np.empty(pixels.shape, dtype=np.uint8)
@@ -302,7 +302,7 @@ def write_png(path, pixels, *, hdr: bool = False) -> None:
     mode = _PNG_MODES.get(pixels.shape[2])
     if mode is None:
         raise ValueError(f"PNG needs 1 to 4 channels, got {pixels.shape[2]}")
-    out = _to_display8(pixels, hdr)
+    out = display8(pixels, hdr)
     with atomic_path(path) as tmp:
         PILImage.fromarray(out[..., 0] if mode == "L" else out, mode).save(tmp, format="PNG")
 
@@ -455,7 +455,7 @@ class PngBlockWriter(_BlockWriter):
         self._chunk(b"IHDR", ihdr)
 
     def _rows(self, block: np.ndarray) -> None:
-        px = _to_display8(block, self.hdr).reshape(len(block), -1)  # (h, W*C) bytes
+        px = display8(block, self.hdr).reshape(len(block), -1)  # (h, W*C) bytes
         filtered = np.empty((len(block), px.shape[1] + 1), dtype=np.uint8)
         filtered[:, 0] = 1  # filter type Sub: byte minus the same channel of the pixel to the left
         filtered[:, 1 : 1 + self.n_channels] = px[:, : self.n_channels]

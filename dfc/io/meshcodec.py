@@ -19,6 +19,7 @@ import zstandard
 
 from ..errors import FormatError, MeshError
 from ..geometry.mesh import Mesh
+from ..geometry.plane import cross
 from ..geometry.tolerances import tol
 
 __all__ = [
@@ -97,10 +98,6 @@ def _normalise(p: np.ndarray, domain) -> np.ndarray:
 def _denormalise(t: np.ndarray, domain) -> np.ndarray:
     x0, y0, x1, y1 = domain
     return np.stack([_lerp(t[..., 0], x0, x1), _lerp(t[..., 1], y0, y1)], axis=-1)
-
-
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 def _inverse(perm: np.ndarray) -> np.ndarray:
@@ -183,8 +180,8 @@ def _encode_topology(mesh: Mesh, vmap: np.ndarray, tmap: np.ndarray, cp_format: 
         rows = np.repeat(np.arange(C), 2).reshape(C, 2)[keep]
         d, e, p = (B - A)[rows], (X - A)[rows], inner[keep] - A[rows]
         with np.errstate(divide="ignore", invalid="ignore"):  # degenerate triangles fail validation later
-            det = _cross(d, e)
-            uw = np.stack([_cross(p, e) / det, _cross(d, p) / det], axis=-1)
+            det = cross(d, e)
+            uw = np.stack([cross(p, e) / det, cross(d, p) / det], axis=-1)
         if not np.all(np.abs(uw) < _BARY_LIMIT):  # also catches NaN from degenerate triangles
             return None
         parts.append(np.rint(uw * _BARY_ONE).astype("<i4"))
@@ -304,8 +301,8 @@ def check_mesh(vertices: np.ndarray, triangles: np.ndarray, domain) -> None:
     if np.any((a == b) | (b == c) | (c == a)):
         raise FormatError("MESH: triangle with a repeated vertex")
     p = vertices[triangles]
-    cross = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    if not np.all(cross > 0):
+    doubled = cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    if not np.all(doubled > 0):
         raise FormatError("MESH: triangle not counter-clockwise with positive area")
     directed = np.stack([triangles, np.roll(triangles, -1, axis=1)], axis=-1).reshape(-1, 2)
     key = directed[:, 0] * V + directed[:, 1]
@@ -318,7 +315,7 @@ def check_mesh(vertices: np.ndarray, triangles: np.ndarray, domain) -> None:
     if not np.all(on_side):
         raise FormatError("MESH: a boundary edge is not on the domain border (hole)")
     area = (x1 - x0) * (y1 - y0)
-    if abs(0.5 * cross.sum() - area) > tol.area_rel * area:
+    if abs(0.5 * doubled.sum() - area) > tol.area_rel * area:
         raise FormatError("MESH: triangle areas do not sum to the domain area")
     if len(np.unique(triangles)) != V:
         raise FormatError("MESH: a vertex is used by no triangle")

@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ..geometry import bezier
 from ..geometry.curves import Curves
+from ..geometry.plane import cross, triangle_areas
 from ..io.fem import FemSolution
 
 __all__ = ["SAMPLES_PER_TRIANGLE", "barrier_segments", "evaluate_fem", "fem_curves", "interpolate", "node_points",
@@ -69,7 +70,7 @@ def _side(u: np.ndarray, v: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Signed distance of points w from the lines u→v (broadcast over leading axes; y down: < 0 is left)."""
     d = v - u
     n = np.maximum(np.hypot(d[..., 0], d[..., 1]), 1e-300)
-    return (d[..., 0] * (w[..., 1] - u[..., 1]) - d[..., 1] * (w[..., 0] - u[..., 0])) / n
+    return cross(d, w - u) / n
 
 
 def _crosses(p: np.ndarray, q: np.ndarray, segments: np.ndarray, eps: float) -> np.ndarray:
@@ -151,8 +152,7 @@ def sample_fem(solution: FemSolution, curves: Curves, *, per_triangle: float = S
     """
     rng = np.random.default_rng(seed)
     corners = solution.points[solution.triangles]
-    e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
-    area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+    area = triangle_areas(corners)
     n = int(round(per_triangle * len(area)))
     tri = rng.choice(len(area), size=n, p=area / area.sum())
     r1, r2 = np.sqrt(rng.random(n)), rng.random(n)

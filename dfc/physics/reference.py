@@ -29,6 +29,7 @@ from scipy.sparse.linalg import splu
 
 from ..errors import InputError
 from ..geometry.curves import Curves
+from ..geometry.plane import cross
 from .wos import FLATNESS_REL, Scene, flatten_curves
 
 __all__ = ["MIN_THETA", "ReferenceSolution", "reference_solution", "solve_reference"]
@@ -104,19 +105,15 @@ class ReferenceSolution:
         a, b = lines.vertices[seg], lines.vertices[seg + 1]
         p = xy[point]
         for k in range(nodes.shape[1]):
-            hit = _segments_cross(p, nodes[point, k], a, b)
+            hit = _segmentscross(p, nodes[point, k], a, b)
             np.logical_or.at(out[:, k], point[hit], True)
         return out
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-
-
-def _segments_cross(p, q, a, b) -> np.ndarray:
+def _segmentscross(p, q, a, b) -> np.ndarray:
     """(M,) bool: segment p–q meets segment a–b (touching counts)."""
-    d1, d2 = _cross(q - p, a - p), _cross(q - p, b - p)
-    d3, d4 = _cross(b - a, p - a), _cross(b - a, q - a)
+    d1, d2 = cross(q - p, a - p), cross(q - p, b - p)
+    d3, d4 = cross(b - a, p - a), cross(b - a, q - a)
     return (d1 * d2 <= 0) & (d3 * d4 <= 0)
 
 
@@ -209,6 +206,6 @@ def _crossings(lines, domain, width: int, height: int, axis: int):
     node_b = node_a + (1 if axis == 0 else width)
     a_xy = origin + (ij + 0.5) * cell
     x = p + lam[:, None] * (q - p)
-    left_a = _cross(q - p, a_xy - x) < 0.0
+    left_a = cross(q - p, a_xy - x) < 0.0
     t = lines.t[seg] + lam * (lines.t[seg + 1] - lines.t[seg])
     return node_a, node_b, pos - i, left_a, lines.piece[seg], t

@@ -47,6 +47,7 @@ from torch import Tensor, nn
 from ..errors import InputError
 from ..geometry import bezier
 from ..geometry.mesh import Mesh
+from ..geometry.plane import triangle_areas
 from ..metrics import data_range
 from .wos import Scene
 
@@ -107,8 +108,7 @@ class SolveProblem:
         self.n_channels = scene.n_channels
         tri = mesh.vertices[mesh.triangles]  # (T, 3, 2)
         self.corners = torch.from_numpy(np.ascontiguousarray(tri))
-        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
-        area = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
+        area = triangle_areas(tri)
         self.cdf = torch.from_numpy(np.cumsum(area) / area.sum())
         self.boundary_xy, self.boundary_values = self._pool(np.random.default_rng(seed))
         if not len(self.boundary_xy):

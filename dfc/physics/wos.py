@@ -41,6 +41,7 @@ from scipy.spatial import cKDTree
 from ..errors import InputError
 from ..geometry import bezier
 from ..geometry.curves import Curves
+from ..geometry.plane import cross
 from ..geometry.tolerances import tol
 from ..io.samples import SampleSet, default_channels
 
@@ -248,8 +249,7 @@ class Scene:
         flat = np.linalg.norm(tangent, axis=1) <= np.linalg.norm(chord, axis=1) * tol.distinct_rel
         tangent = np.where(flat[:, None], chord, tangent)  # a degenerate end tangent (P0 = P1)
         r = p - bezier.evaluate(cp, t)
-        cross = tangent[:, 0] * r[:, 1] - tangent[:, 1] * r[:, 0]
-        return piece, t, cross <= 0.0
+        return piece, t, cross(tangent, r) <= 0.0
 
     def side_values(self, piece: np.ndarray, t: np.ndarray, left: np.ndarray) -> np.ndarray:
         """Values (N, C) float64 prescribed at pieces' parameters ``t`` on the given sides."""
