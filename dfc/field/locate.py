@@ -69,6 +69,19 @@ def _cell_pairs(v0: np.ndarray, v1: np.ndarray, v2: np.ndarray, origin: np.ndarr
     return tri[keep], (iy * nx + ix)[keep]
 
 
+def _barycentric(m: torch.Tensor, x: torch.Tensor, y: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Barycentric coordinates (l0, l1, l2) of points (x, y) in triangles with ``tri_affine`` rows m (..., 10).
+
+    Each coordinate is measured from a vertex on the edge where it vanishes (l1, l2 from v0, l0 from v1), so
+    its sign is right for points however close to that edge, even in needle triangles; the three sum to 1
+    up to rounding."""
+    dx, dy = x - m[..., 0], y - m[..., 1]
+    l0 = m[..., 8] * (x - m[..., 6]) + m[..., 9] * (y - m[..., 7])
+    l1 = m[..., 2] * dx + m[..., 3] * dy
+    l2 = m[..., 4] * dx + m[..., 5] * dy
+    return l0, l1, l2
+
+
 class PointLocator(nn.Module):
     """Grid-accelerated point location.
 
@@ -95,8 +108,11 @@ class PointLocator(nn.Module):
         if np.any(det <= 0):
             bad = int(np.flatnonzero(det <= 0)[0])
             raise MeshError(f"point location: triangle {bad} is degenerate or clockwise")
-        # Barycentric map per triangle: (l1, l2) = inv([v1 - v0, v2 - v0]) @ (x - v0).
+        # Barycentric map per triangle: (l1, l2) = inv([v1 - v0, v2 - v0]) @ (x - v0), and l0 from v1 along
+        # its own gradient (not 1 - l1 - l2, which loses the sign next to a short edge v1 v2 of a needle).
         inv = np.stack([e2[:, 1], -e2[:, 0], -e1[:, 1], e1[:, 0]], axis=1) / det[:, None]
+        e12 = v2 - v1
+        grad0 = np.stack([-e12[:, 1], e12[:, 0]], axis=1) / det[:, None]
         centre = origin + (np.stack([cell % nx, cell // nx], axis=1) + 0.5) * h
         d = centre - v0[tri]
         l1 = inv[tri, 0] * d[:, 0] + inv[tri, 1] * d[:, 1]
@@ -117,7 +133,7 @@ class PointLocator(nn.Module):
         self.register_buffer("cell_start", torch.from_numpy((np.cumsum(count) - count).astype(np.int32)))
         self.register_buffer("cell_count", torch.from_numpy(count.astype(np.int32)))
         self.register_buffer("cell_triangles", torch.from_numpy(tri.astype(np.int32)))
-        self.register_buffer("tri_affine", torch.from_numpy(np.concatenate([v0, inv], axis=1)))  # (T, 6)
+        self.register_buffer("tri_affine", torch.from_numpy(np.concatenate([v0, inv, v1, grad0], axis=1)))  # (T, 10)
 
     def clamp(self, xy: torch.Tensor) -> torch.Tensor:
         """Clamp (N, 2) float64 points onto the domain rectangle (gradient zero outside)."""
@@ -125,11 +141,7 @@ class PointLocator(nn.Module):
 
     def barycentric(self, xy: torch.Tensor, tri: torch.Tensor) -> torch.Tensor:
         """Barycentric coordinates (N, 3) float64 of points (N, 2) float64 in triangles (N,) int64 (differentiable)."""
-        m = self.tri_affine.index_select(0, tri)
-        dx, dy = xy[:, 0] - m[:, 0], xy[:, 1] - m[:, 1]
-        l1 = m[:, 2] * dx + m[:, 3] * dy
-        l2 = m[:, 4] * dx + m[:, 5] * dy
-        return torch.stack([1.0 - l1 - l2, l1, l2], dim=1)
+        return torch.stack(_barycentric(self.tri_affine.index_select(0, tri), xy[:, 0], xy[:, 1]), dim=1)
 
     @torch.no_grad()
     def forward(self, xy: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -170,21 +182,17 @@ class PointLocator(nn.Module):
             valid = k < count[active, None]                                           # (A, W)
             pos = torch.where(valid, start[active, None] + k, start[active, None])
             cand = self.cell_triangles[pos].long()                                    # (A, W)
-            m = self.tri_affine[cand]                                                 # (A, W, 6)
             p = xy[active]
-            dx, dy = p[:, None, 0] - m[..., 0], p[:, None, 1] - m[..., 1]
-            l1 = m[..., 2] * dx + m[..., 3] * dy
-            l2 = m[..., 4] * dx + m[..., 5] * dy
-            score = torch.minimum(torch.minimum(l1, l2), 1.0 - l1 - l2).masked_fill(~valid, -torch.inf)
+            l0, l1, l2 = _barycentric(self.tri_affine[cand], p[:, None, 0], p[:, None, 1])      # (A, W) each
+            score = torch.minimum(torch.minimum(l0, l1), l2).masked_fill(~valid, -torch.inf)
             inside = score >= 0
             found = inside.any(1)
             pick = torch.where(found, inside.to(torch.uint8).argmax(1), score.argmax(1))[:, None]
             top = score.gather(1, pick)[:, 0]
             better = found | (top > best[active])
             upd = active[better]
-            l1, l2 = l1.gather(1, pick)[better, 0], l2.gather(1, pick)[better, 0]
             tri[upd] = cand.gather(1, pick)[better, 0]
-            bary[upd] = torch.stack([1.0 - l1 - l2, l1, l2], dim=1)
+            bary[upd] = torch.stack([lam.gather(1, pick)[better, 0] for lam in (l0, l1, l2)], dim=1)
             best[upd] = top[better]
             k0 += width
             active = active[~found & (count[active] > k0)]

@@ -115,6 +115,18 @@ def random_mesh(seed: int, n_points: int = 24, disc_fraction: float = 0.35, n_cu
     return make_mesh(pts, tris, disc, curved)
 
 
+def needle_mesh() -> Mesh:
+    """The unit square with one short discontinuous edge (1e-6 long) in the middle, so that the triangles on it
+    are needles ~4e5 times as long as that edge, each listed from its far corner (as dfc.triangulate may list
+    them) — the mesh a tiny line piece left by the clean-up gives (property-test seed 205)."""
+    pts = np.array([[0, 0], [1, 0], [1, 1], [0, 1],
+                    [0.5429338042388561, 0.42156448725157014], [0.5429342603539355, 0.4215635981485822]])
+    tris = cdt_triangles(pts, np.array([[4, 5]]))
+    opposite = np.linalg.norm(pts[np.roll(tris, -1, 1)] - pts[np.roll(tris, -2, 1)], axis=2)
+    first = np.argmin(opposite, axis=1)[:, None]  # the corner facing the shortest edge comes first
+    return make_mesh(pts, np.take_along_axis(tris, (first + np.arange(3)) % 3, axis=1), [[4, 5]], [])
+
+
 def tangent_mesh(pieces: list[np.ndarray], degrees: list[int], extra: np.ndarray, disc=np.zeros((0, 2))) -> Mesh:
     """Mesh of the unit square holding the given pieces (cubic cp (4, 2) each, endpoints shared by
     exact equality), each in its tangent triangle (a, X, b) built with constrained edges, plus extra points."""

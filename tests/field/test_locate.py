@@ -1,5 +1,7 @@
 """Point location: every point of the domain finds a triangle that contains it, deterministically."""
 
+from fractions import Fraction
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +11,7 @@ from hypothesis import strategies as st
 from dfc.errors import MeshError
 from dfc.field.locate import PointLocator
 
-from ._meshes import cdt_triangles, mesh_edges, random_mesh
+from ._meshes import cdt_triangles, mesh_edges, needle_mesh, random_mesh
 
 TOL = 1e-12
 
@@ -51,6 +53,29 @@ def test_random_border_and_vertex_points(seed, density):
     # deterministic, also when the same point comes in another batch
     tri2 = loc(xy.flip(0))[0].numpy()[::-1]
     np.testing.assert_array_equal(tri, tri2)
+
+
+def _exactly_inside(tri_xy: np.ndarray, p: np.ndarray) -> bool:
+    """Whether p (2,) lies in the closed counter-clockwise triangle (3, 2), in exact rational arithmetic."""
+    (ax, ay), (bx, by), (cx, cy) = (map(Fraction, q) for q in tri_xy)
+    px, py = map(Fraction, p)
+    return all((qx - ox) * (py - oy) - (qy - oy) * (px - ox) >= 0
+               for (ox, oy), (qx, qy) in (((ax, ay), (bx, by)), ((bx, by), (cx, cy)), ((cx, cy), (ax, ay))))
+
+
+def test_needle_triangles_keep_points_on_their_side_of_a_short_edge():
+    """1e-13 off a 1e-6 edge whose triangles are 4e5 times as long: no cancellation in 1 - l1 - l2 may
+    put a point into the triangle across the edge (the field would take the other side's features)."""
+    mesh = needle_mesh()
+    a, b = mesh.vertices[mesh.disc_edges[0]]
+    n = np.array([-(b - a)[1], (b - a)[0]]) / np.linalg.norm(b - a)
+    s = np.linspace(0.05, 0.95, 19)[:, None]
+    q = np.concatenate([a + s * (b - a) + d * n for d in (1e-13, -1e-13, 1e-12, -1e-12)])
+    _, xy, tri, bary = _locate(mesh, q)
+    for k in range(len(q)):
+        assert _exactly_inside(mesh.vertices[mesh.triangles[tri[k]]], xy[k].numpy()), f"point {k} is outside its triangle"
+    assert bary.min() >= 0.0
+    np.testing.assert_allclose(bary.sum(1), 1.0, atol=1e-9)
 
 
 def test_outside_points_are_clamped():
