@@ -30,6 +30,8 @@ _LAZY = {
     "load": "dfc.io.dfield",
     "loads": "dfc.io.dfield",
     "read_image": "dfc.io.image",
+    "read_samples": "dfc.io.samples",
+    "solve_scene": "dfc.physics.solve",
     "render": "dfc.render",
 }
 

@@ -32,6 +32,7 @@ from ..render import values_at, window_points, window_shape, zoom_window
 from .report import contact_sheet as contact_sheet_grid
 from .report import display, write_report
 from .report import markdown_table as table
+from .timing import best_seconds
 
 __all__ = ["METHODS", "ZOOMS", "BenchResult", "BenchSettings", "contact_sheet", "markdown_table", "run_bench",
            "run_scene", "throughput", "write_outputs"]
@@ -95,18 +96,8 @@ def throughput(model: nn.Module, domain, device: str, seed: int = 0) -> float:
     x0, y0, x1, y1 = domain
     rng = np.random.default_rng(seed)
     xy = torch.from_numpy(rng.random((THROUGHPUT_POINTS, 2)) * [x1 - x0, y1 - y0] + [x0, y0]).to(device)
-    best = math.inf
     with torch.no_grad():
-        for k in range(THROUGHPUT_REPEATS + 1):
-            if device.startswith("cuda"):
-                torch.cuda.synchronize()
-            clock = time.perf_counter()
-            model(xy)
-            if device.startswith("cuda"):
-                torch.cuda.synchronize()
-            if k:
-                best = min(best, time.perf_counter() - clock)
-    return THROUGHPUT_POINTS / best
+        return THROUGHPUT_POINTS / best_seconds(lambda: model(xy), THROUGHPUT_REPEATS, device)
 
 
 class _Remap(nn.Module):

@@ -49,8 +49,9 @@ def _zooms(ctx, param, value):
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 def command(input_path, curves_path, scene, solve_path, list_scenes, probes, output, zooms, methods, target_bytes,
             steps, batch_size, size, render, spp, max_triangles, seed, device, fit_curves_to_image, quiet):
-    """Fit dfc and every baseline at the .dfield's byte count, render each probe window at each zoom and
-    write the PSNR table (results.json, results.md) and a contact sheet (contact.png) to OUTPUT.
+    """Compare dfc with other methods at equal file size: fit dfc and every baseline at the .dfield's byte count,
+    render each probe window at each zoom and write the PSNR table (results.json, results.md) and a contact sheet
+    (contact.png) to OUTPUT. (Speed and scale of dfc's own stages: dfc benchmark.)
 
     \b
     dfc bench INPUT --curves CURVES --probe X,Y [--probe ...] -o DIR

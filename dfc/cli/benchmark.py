@@ -20,4 +20,5 @@ class _BenchGroup(click.Group):
 
 @click.group(cls=_BenchGroup)
 def command():
-    """Measure speed and quality; prints the figures (see each benchmark's --help)."""
+    """Measure dfc's own stages: speed, memory and quality figures of one capability each, printed (see each
+    benchmark's --help). Comparisons with other methods at equal size: dfc bench."""

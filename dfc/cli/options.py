@@ -82,9 +82,9 @@ def check_device(device: str) -> str:
     return str(dev)
 
 
-def progress_bar(total: int, label: str, quiet: bool):
-    """A tqdm bar on stderr, disabled with ``quiet``."""
+def progress_bar(total: int, label: str, quiet: bool, *, unit: str = "step"):
+    """The progress bar of every command: tqdm on stderr, disabled with ``quiet``."""
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=label, unit="step", disable=quiet, file=sys.stderr, leave=False,
+    return tqdm(total=total, desc=label, unit=unit, disable=quiet, file=sys.stderr, leave=False,
                 dynamic_ncols=True, mininterval=0.5)

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
-from .options import positive
+from .options import positive, progress_bar
 
 REFERENCE_FORMATS = (".exr", ".npz")
 
@@ -46,9 +45,9 @@ def command(scene_path, output, resolution, spp, eps, max_steps, seed, reference
     width, height = grid_size(scene.domain, resolution)
     total = width * height * spp
     capped = [0]
-    with click.progressbar(length=total, label="walks", file=sys.stderr) as bar:
+    with progress_bar(total, "walks", quiet=False, unit="walk") as bar:
         def progress(done, _total, n_capped):
-            bar.update(done - bar.pos)
+            bar.update(done - bar.n)
             capped[0] = n_capped
 
         samples = sample_scene(scene, resolution, spp, eps=eps, seed=seed, callback=progress,

@@ -98,7 +98,7 @@ def build_layout(mesh: Mesh) -> Layout:
     """
     verts = np.asarray(mesh.vertices, np.float64)
     tris = np.asarray(mesh.triangles, np.int64)
-    n_v, n_t = len(verts), len(tris)
+    n_v = len(verts)
 
     # Discontinuous half-edges sorted by (from, angle, to): CSR per vertex.
     h_from, h_to = _half_edges(mesh)
@@ -116,8 +116,32 @@ def build_layout(mesh: Mesh) -> Layout:
     nxt = first[h_from] + (j_of + 1) % np.maximum(k[h_from], 1)
     sector_theta = np.where(k[h_from] == 1, TWO_PI, np.mod(h_ang[nxt] - h_ang, TWO_PI))
 
-    # Corners: vertex, next and previous corner.
+    sector, alpha, beta, theta = _corner_sectors(verts, tris, h_to, h_ang, k, first, sector_theta)
+    start = np.where(k[tris] > 0, offset[tris] + 2 * sector, offset[tris])
+    end = np.where(k[tris] > 0, start + 1, start)
+    triangle_curve, apex, sliver_rows = _sliver_rows(mesh, k, offset, sector, n_vertex_features)
+    return Layout(
+        n_features=n_vertex_features + len(apex),
+        n_vertex_features=n_vertex_features,
+        vertex_offset=offset,
+        vertex_sectors=k,
+        corner_start=start,
+        corner_end=end,
+        corner_sector=sector,
+        corner_alpha=alpha,
+        corner_beta=beta,
+        corner_theta=theta,
+        triangle_curve=triangle_curve,
+        curve_apex=apex,
+        curve_sliver_rows=sliver_rows,
+    )
+
+
+def _corner_sectors(verts, tris, h_to, h_ang, k, first, sector_theta):
+    """Per triangle corner (T, 3): the sector of its vertex it lies in, the angle alpha from that sector's first
+    edge to the corner's next edge, the corner's angle beta, and the sector's angle theta (inf without one)."""
     v = tris
+    # Corners: vertex, next and previous corner.
     n = np.roll(tris, -1, axis=1)
     p = np.roll(tris, 1, axis=1)
     e_n = verts[n] - verts[v]
@@ -130,12 +154,12 @@ def build_layout(mesh: Mesh) -> Layout:
     kv = k[v]
     count = np.zeros_like(v)
     for j in range(int(k.max(initial=0))):
-        idx = np.minimum(first[v] + j, max(len(h_from) - 1, 0))
+        idx = np.minimum(first[v] + j, max(len(h_to) - 1, 0))
         count += (j < kv) & (h_ang[idx] <= bisector)
     has = kv > 0
     sector = np.where(has, np.mod(count - 1, np.maximum(kv, 1)), 0)
     hs = np.where(has, first[v] + sector, 0)
-    if len(h_from):
+    if len(h_to):
         theta = np.where(has, sector_theta[hs], np.inf)
         alpha = np.where(has, np.mod(ang_n - h_ang[hs], TWO_PI), 0.0)
         alpha = np.where(has & (h_to[hs] == n), 0.0, alpha)
@@ -145,9 +169,14 @@ def build_layout(mesh: Mesh) -> Layout:
     # Rounding can push alpha just past the sector end; put it back at the nearer bound.
     over = alpha > theta
     alpha = np.where(over, np.where(alpha - theta < TWO_PI - alpha, theta, 0.0), alpha)
-    start = np.where(has, offset[v] + 2 * sector, offset[v])
-    end = np.where(has, start + 1, start)
+    return sector, alpha, beta, theta
 
+
+def _sliver_rows(mesh: Mesh, k, offset, sector, n_vertex_features: int):
+    """Curved triangles: (triangle → curve index or -1 (T,), apex corner (C,), sliver rows (C, 3)) — at the endpoints
+    the chord-edge feature of the sector across the chord, at the apex the curve's own feature row."""
+    tris = np.asarray(mesh.triangles, np.int64)
+    n_t = len(tris)
     # Curved triangles: which corners are the endpoints, and the sliver rows.
     ct = np.asarray(mesh.curved_triangles, np.int64).reshape(-1)
     ends = np.asarray(mesh.curve_endpoints, np.int64).reshape(-1, 2)
@@ -181,18 +210,4 @@ def build_layout(mesh: Mesh) -> Layout:
         sliver_rows[rc, ci] = offset[e_vert] + 2 * far + chord_first
     sliver_rows[rc, apex] = curve_rows
 
-    return Layout(
-        n_features=n_vertex_features + n_c,
-        n_vertex_features=n_vertex_features,
-        vertex_offset=offset,
-        vertex_sectors=k,
-        corner_start=start,
-        corner_end=end,
-        corner_sector=sector,
-        corner_alpha=alpha,
-        corner_beta=beta,
-        corner_theta=theta,
-        triangle_curve=triangle_curve,
-        curve_apex=apex,
-        curve_sliver_rows=sliver_rows,
-    )
+    return triangle_curve, apex, sliver_rows

@@ -26,26 +26,12 @@ from torch.nn.utils import parametrize
 
 from ..errors import DfcError, FormatError
 from .mlp import ACTIVATIONS, MLP, OneBlob
-from .quantize import MAX_FEATURE_BITS, fake_fp16, fake_quantize
+from .quantize import MAX_FEATURE_BITS, FakeFp16, FakeQuantize
 
 __all__ = ["TRANSFORMS", "FieldModel"]
 
 TRANSFORMS = ("identity", "log")
 _CONFIG_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins", "transform", "channels", "n_slices", "times")
-
-
-class _FakeQuantize(nn.Module):
-    def __init__(self, bits: int):
-        super().__init__()
-        self.bits = bits
-
-    def forward(self, X: Tensor) -> Tensor:
-        return fake_quantize(X, self.bits)
-
-
-class _FakeFp16(nn.Module):
-    def forward(self, X: Tensor) -> Tensor:
-        return fake_fp16(X)
 
 
 class FieldModel(nn.Module):
@@ -151,10 +137,10 @@ class FieldModel(nn.Module):
                     parametrize.remove_parametrizations(lin, name, leave_parametrized=False)
         self._quantization = None
         if value is not None:
-            parametrize.register_parametrization(self.field, "bank", _FakeQuantize(value["feature_bits"]))
+            parametrize.register_parametrization(self.field, "bank", FakeQuantize(value["feature_bits"]))
             for lin in self.decoder.linears():
                 for name in ("weight", "bias"):
-                    parametrize.register_parametrization(lin, name, _FakeFp16())
+                    parametrize.register_parametrization(lin, name, FakeFp16())
             self._quantization = {"feature_bits": value["feature_bits"]}
 
     # -- serialisation ------------------------------------------------------------------------

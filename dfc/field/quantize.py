@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from torch import nn
 
 MAX_FEATURE_BITS = 16
 
@@ -55,3 +56,21 @@ def fake_quantize(F: torch.Tensor, bits: int) -> torch.Tensor:
 def fake_fp16(W: torch.Tensor) -> torch.Tensor:
     """Round a weight tensor through float16 as the file stores it, straight-through gradient."""
     return W + (W.detach().half().float().to(W.dtype) - W).detach()
+
+
+class FakeQuantize(nn.Module):
+    """``torch.nn.utils.parametrize`` parametrisation: a tensor reads as ``fake_quantize(X, bits)``."""
+
+    def __init__(self, bits: int):
+        super().__init__()
+        self.bits = bits
+
+    def forward(self, X: torch.Tensor) -> torch.Tensor:
+        return fake_quantize(X, self.bits)
+
+
+class FakeFp16(nn.Module):
+    """``torch.nn.utils.parametrize`` parametrisation: a tensor reads as its float16 rounding (``fake_fp16``)."""
+
+    def forward(self, X: torch.Tensor) -> torch.Tensor:
+        return fake_fp16(X)

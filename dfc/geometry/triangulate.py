@@ -22,6 +22,7 @@ from the curves, ``max_triangles`` caps the count. With none of them the target 
 from __future__ import annotations
 
 import time
+from functools import partial
 
 import numpy as np
 import pythoncdt as cdt
@@ -100,19 +101,51 @@ def triangulate(
     stats["pieces_in"], stats["pieces_clean"] = len(curves), len(pieces)
 
     clock = time.perf_counter()
-    domain, diag = pieces.domain, pieces.diagonal
-    eps = tol.touch_rel * diag
-    control_points = _snap_ends_to_border(pieces.control_points, domain, eps)
-    is_line = pieces.degree == 1
-    lines = control_points[is_line][:, [0, 3]]
-    line_piece = np.flatnonzero(is_line)
-    cp, degree, curve_piece, apex = _separate(
-        control_points[~is_line], pieces.degree[~is_line], np.flatnonzero(~is_line), lines, domain, eps
-    )
+    domain, eps = pieces.domain, tol.touch_rel * pieces.diagonal
+    lines, line_piece, cp, degree, curve_piece, apex = _separate_pieces(pieces, eps)
     stats["conflict_s"] = time.perf_counter() - clock
     stats["pieces_final"] = len(lines) + len(cp)
 
     clock = time.perf_counter()
+    points, line_edges, line_piece, chords = _constraint_graph(domain, lines, line_piece, cp)
+    tangent = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
+    fixed = np.concatenate([line_edges, chords])
+    n_border = int(_on_border(points, domain).sum())
+    floor_count = 2 * len(points) - n_border - 2
+    if max_triangles is not None and floor_count > max_triangles:
+        raise TriangleBudgetError(
+            f"triangulate: the {len(pieces)} cleaned-up pieces alone need at least {floor_count} triangles, "
+            f"more than max_triangles = {max_triangles}", floor_count
+        )
+    area0, budget = _size_target(domain, max_area, edge_length, max_triangles, floor_count, len(cp))
+    target = _target_area(area0, grading, np.concatenate([lines.reshape(-1, 2, 2), cp[:, [0, 3]]]), cp, domain)
+    steiner = _steiner_points(points, fixed, domain, tangent, target, area0, budget, min_angle, eps)
+    stats["density_s"] = time.perf_counter() - clock
+
+    clock = time.perf_counter()
+    build = partial(_final_mesh, points, line_edges=line_edges, line_piece=line_piece, chords=chords, cp=cp,
+                    degree=degree, curve_piece=curve_piece, apex=apex, domain=domain, eps=eps)
+    mesh, n_apex, steiner = _within_budget(build, steiner, max_triangles)
+    stats["cdt_s"] = time.perf_counter() - clock
+    stats.update(apexes=n_apex, steiner=len(steiner), vertices=mesh.n_vertices, triangles=mesh.n_triangles)
+    return mesh
+
+
+def _separate_pieces(pieces: Curves, eps: float):
+    """Line pieces (L, 2, 2) with their piece indices (L,), and the curved pieces after the conflict loop
+    (``_separate``): control points (C, 4, 2), degrees, piece indices and tangent-triangle apexes (C, 2)."""
+    control_points = _snap_ends_to_border(pieces.control_points, pieces.domain, eps)
+    is_line = pieces.degree == 1
+    lines = control_points[is_line][:, [0, 3]]
+    cp, degree, curve_piece, apex = _separate(
+        control_points[~is_line], pieces.degree[~is_line], np.flatnonzero(~is_line), lines, pieces.domain, eps
+    )
+    return lines, np.flatnonzero(is_line), cp, degree, curve_piece, apex
+
+
+def _constraint_graph(domain, lines, line_piece, cp):
+    """The CDT's input vertices and constraint edges: (points (V, 2) — the domain's corners and every piece's
+    endpoints, deduplicated —, line edges (L, 2) into points (duplicates dropped), their pieces (L,), chords (C, 2))."""
     x0, y0, x1, y1 = domain
     corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
     n_l, n_c = len(lines), len(cp)
@@ -122,37 +155,24 @@ def triangulate(
     inverse = inverse.reshape(-1)
     line_edges = np.stack([inverse[4 : 4 + n_l], inverse[4 + n_l : 4 + 2 * n_l]], axis=1)
     line_edges, first = np.unique(np.sort(line_edges, axis=1), axis=0, return_index=True)
-    line_piece = line_piece[first]
     chords = np.stack([inverse[4 + 2 * n_l : 4 + 2 * n_l + n_c], inverse[4 + 2 * n_l + n_c :]], axis=1)
-    tangent = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
-    fixed = np.concatenate([line_edges, chords])
+    return points, line_edges, line_piece[first], chords
 
-    n_border = int(_on_border(points, domain).sum())
-    floor_count = 2 * len(points) - n_border - 2
-    if max_triangles is not None and floor_count > max_triangles:
-        raise TriangleBudgetError(
-            f"triangulate: the {len(pieces)} cleaned-up pieces alone need at least {floor_count} triangles, "
-            f"more than max_triangles = {max_triangles}", floor_count
-        )
-    area0, budget = _size_target(domain, max_area, edge_length, max_triangles, floor_count, n_c)
-    target = _target_area(area0, grading, np.concatenate([lines.reshape(-1, 2, 2), cp[:, [0, 3]]]), cp, domain)
-    steiner = _steiner_points(points, fixed, domain, tangent, target, area0, budget, min_angle, eps)
-    stats["density_s"] = time.perf_counter() - clock
 
-    clock = time.perf_counter()
-    mesh, n_apex = _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, curve_piece, apex, domain, eps)
+def _within_budget(build, steiner: np.ndarray, max_triangles: int | None):
+    """(mesh, apexes, Steiner points used): ``build(steiner)``, dropping Steiner points at random (seeded) until the
+    mesh has at most ``max_triangles`` triangles; ``TriangleBudgetError`` when the curves alone need more."""
+    mesh, n_apex = build(steiner)
     while max_triangles is not None and mesh.n_triangles > max_triangles and len(steiner):
         keep = max(0, len(steiner) - (mesh.n_triangles - max_triangles + 1) // 2 - 1)
         steiner = steiner[np.sort(np.random.default_rng(0).permutation(len(steiner))[:keep])]
-        mesh, n_apex = _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, curve_piece, apex, domain, eps)
+        mesh, n_apex = build(steiner)
     if max_triangles is not None and mesh.n_triangles > max_triangles:
         raise TriangleBudgetError(
             f"triangulate: the curves alone need {mesh.n_triangles} triangles, more than max_triangles = {max_triangles}",
             mesh.n_triangles,
         )
-    stats["cdt_s"] = time.perf_counter() - clock
-    stats.update(apexes=n_apex, steiner=len(steiner), vertices=mesh.n_vertices, triangles=mesh.n_triangles)
-    return mesh
+    return mesh, n_apex, steiner
 
 
 def _snap_ends_to_border(cp, domain, eps) -> np.ndarray:

@@ -25,7 +25,7 @@ Sampler = Callable[[int, torch.Generator], tuple]
 """``sampler(step, generator) -> batch``: the batch for global step ``step``, drawn with ``generator``."""
 Loss = Callable[[nn.Module, tuple], tuple[Tensor, dict[str, Tensor]]]
 """``loss(model, batch) -> (value, metrics)``: the scalar to minimise and named 0-dim metrics of the step, in the
-order the callback receives them."""
+order the callback receives them (values of their own, not views of parameters the step will change)."""
 
 
 @dataclass(frozen=True)

@@ -9,10 +9,10 @@ from click.testing import CliRunner
 from PIL import Image as PILImage
 
 from dfc.bench.report import LABEL_WIDTH, TILE
-from dfc.render import window_points, zoom_window
 from dfc.bench.scenes import SCENES
 from dfc.cli import cli
 from dfc.errors import InputError
+from dfc.render import window_points, zoom_window
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

@@ -31,7 +31,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn.utils import parametrize
 
-from ...field.quantize import fake_fp16
+from ...field.quantize import FakeFp16
 
 __all__ = ["FP16_BYTES", "Baseline", "fit_baseline", "fp16_bytes", "normalise", "value_scale"]
 
@@ -57,11 +57,6 @@ def value_scale(image) -> float:
     """Output unit of a baseline fitted to ``image`` (any array, or None): 1 when its values lie in
     [-1, 1] (LDR) or it is None, else its largest magnitude."""
     return 1.0 if image is None else max(1.0, float(np.max(np.abs(image))))
-
-
-class _Fp16(nn.Module):
-    def forward(self, X: Tensor) -> Tensor:
-        return fake_fp16(X)
 
 
 class Baseline(nn.Module):
@@ -150,7 +145,7 @@ class Baseline(nn.Module):
         if value is not None:
             targets = [(m, n) for m in self.modules() for n, _ in list(m.named_parameters(recurse=False))]
             for m, n in targets:
-                parametrize.register_parametrization(m, n, _Fp16())
+                parametrize.register_parametrization(m, n, FakeFp16())
             self._fp16_params = targets
             self._quantization = dict(value)
 

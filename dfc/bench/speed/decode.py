@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from ...io.atomic import write_bytes_atomic
-from .field import _best
+from ..timing import best_seconds
 
 
 def _peak_rss_mb(cmd: list[str]) -> float:
@@ -75,8 +75,8 @@ def command(dfield, size, big, steps, repeat, json_path):
             features = model.features(xy).float()
         cpu = torch.device("cpu")
         with torch.no_grad():
-            t_render = _best(lambda: render(model, size, size), repeat, cpu)
-            t_mlp = _best(lambda: model.decoder(features), repeat, cpu)
+            t_render = best_seconds(lambda: render(model, size, size), repeat, cpu)
+            t_mlp = best_seconds(lambda: model.decoder(features), repeat, cpu)
         out = Path(tmp) / "out.exr"
         cmd = [sys.executable, "-m", "dfc", "decode", str(dfield), "-o", str(out), "-q"]
         clock = time.perf_counter()

@@ -10,30 +10,14 @@ backward → Adam step). Each time is the best of ``--repeat`` runs.
 from __future__ import annotations
 
 import json
-import time
 
 import click
-import numpy as np
 import torch
 from torch import nn
 
 from ...io.atomic import write_bytes_atomic
+from ..timing import best_seconds
 from .mesh import random_cubics
-
-
-def _best(fn, repeat: int, device: torch.device) -> float:
-    """Best wall time in seconds of fn() over repeat runs (after one warm-up), synchronising CUDA."""
-    fn()
-    best = np.inf
-    for _ in range(repeat):
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        clock = time.perf_counter()
-        fn()
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        best = min(best, time.perf_counter() - clock)
-    return best
 
 
 @click.command()
@@ -68,9 +52,9 @@ def command(n_triangles: int, n_curves: int, n_points: int, batch: int, repeat: 
     with torch.no_grad():
         clamped = field.locator.clamp(xy)
         feats = field.features(xy)
-        locate_s = _best(lambda: field.locator(clamped), repeat, dev)
-        field_s = _best(lambda: field.features(xy), repeat, dev)
-        mlp_s = _best(lambda: mlp(feats), repeat, dev)
+        locate_s = best_seconds(lambda: field.locator(clamped), repeat, dev)
+        field_s = best_seconds(lambda: field.features(xy), repeat, dev)
+        mlp_s = best_seconds(lambda: mlp(feats), repeat, dev)
 
     opt = torch.optim.Adam(list(field.parameters()) + list(mlp.parameters()), lr=1e-2, betas=(0.9, 0.99))
     xb = torch.rand((batch, 2), generator=gen, device=dev, dtype=torch.float64)
@@ -82,7 +66,7 @@ def command(n_triangles: int, n_curves: int, n_points: int, batch: int, repeat: 
         loss.backward()
         opt.step()
 
-    step_s = _best(step, repeat, dev)
+    step_s = best_seconds(step, repeat, dev)
     stats = {
         "device": str(dev),
         "threads": torch.get_num_threads(),

@@ -1,0 +1,99 @@
+"""The training loop, through ``fit``: determinism, progress, argument checks."""
+
+import numpy as np
+import pytest
+import torch
+
+from dfc.field.feature_field import FeatureField
+from dfc.field.model import FieldModel
+from dfc.train.fit import fit
+from dfc.train.samplers import image_sampler
+
+from ._scene import scene_image
+
+
+def test_fit_is_deterministic(scene_mesh):
+    image = scene_image(spp=1)
+
+    def run():
+        model = FieldModel(FeatureField(scene_mesh, seed=1), ["R", "G", "B"], hidden=16, seed=1)
+        sampler = image_sampler(image, scene_mesh.domain, 512)
+        history = fit(model, sampler, steps=12, seed=5, qat_steps=3)
+        return model, history
+
+    (a, ha), (b, hb) = run(), run()
+    assert ha == hb and len(ha["loss"]) == 12
+    for (na, pa), (nb, pb) in zip(a.state_dict().items(), b.state_dict().items()):
+        assert na == nb and torch.equal(pa, pb), na
+
+
+def test_fit_reduces_loss_and_reports(scene_mesh):
+    seen = []
+    model = FieldModel(FeatureField(scene_mesh), ["R", "G", "B"])
+    history = fit(model, image_sampler(scene_image(spp=1), scene_mesh.domain, 2048), steps=40,
+                  callback=lambda step, loss, p: seen.append((step, loss, p)))
+    assert [s for s, _, _ in seen] == list(range(40))
+    assert history["loss"][-1] < 0.2 * history["loss"][0]
+    assert history["psnr"][-1] == pytest.approx(10 * np.log10(1 / history["loss"][-1]), rel=0.05)
+
+
+def test_fit_rejects_bad_arguments(scene_mesh):
+    model = FieldModel(FeatureField(scene_mesh), ["Y"])
+    sampler = image_sampler(np.zeros((4, 4, 1), np.float32), scene_mesh.domain, 4)
+    with pytest.raises(ValueError, match="steps"):
+        fit(model, sampler, steps=0)
+    with pytest.raises(ValueError, match="qat_steps"):
+        fit(model, sampler, steps=5, qat_steps=6)
+    with pytest.raises(ValueError, match="loss"):
+        fit(model, sampler, steps=5, loss="l1")
+
+
+class _Staged(torch.nn.Module):
+    """A one-parameter model trained in three stages, recording when it grows and when quantisation starts."""
+
+    def __init__(self):
+        super().__init__()
+        self.w = torch.nn.Parameter(torch.zeros(1))
+        self.grown, self.quantised_at, self.step = [], None, 0  # step: the next step to run
+
+    def stages(self, steps):
+        return [2, 3, steps - 5]
+
+    def next_stage(self):
+        self.grown.append(self.step)
+
+    @property
+    def quantization(self):
+        return None
+
+    @quantization.setter
+    def quantization(self, value):
+        self.quantised_at = self.step
+
+
+@pytest.mark.parametrize("restart", [False, True])
+def test_loop_runs_stages_and_quantisation_on_the_global_step(restart):
+    from dfc.train.loop import Schedule, train
+
+    model, draws = _Staged(), []
+
+    def sampler(step, generator):
+        draws.append(float(torch.rand(1, generator=generator)))
+        model.step = len(draws)  # the step about to run, when the loop grows or quantises the model
+        return (torch.ones(1),)
+
+    def loss(m, batch):
+        value = ((m.w - batch[0]) ** 2).sum()
+        return value, {"loss": value.detach(), "w": m.w.detach()[0].clone()}
+
+    seen = []
+    history = train(model, loss, sampler, Schedule(8, lr=0.1, final_lr=0.01, qat_steps=2, restart_stages=restart),
+                    seed=3, callback=lambda step, value, w: seen.append(step))
+    assert seen == list(range(8)) and len(history["loss"]) == len(history["w"]) == 8
+    assert model.grown == [2, 5] and model.quantised_at == 6
+    assert history["w"][0] == 0 < history["w"][-1] < 1  # recorded before each step, moving towards its target, 1
+    first_of_stage = [torch.rand(1, generator=torch.Generator().manual_seed(3 + k)).item() for k in range(3)]
+    if restart:  # every stage reseeds its sampling with seed + stage
+        assert [draws[0], draws[2], draws[5]] == pytest.approx(first_of_stage)
+    else:  # one generator straight through
+        assert draws[2] != pytest.approx(first_of_stage[1])
