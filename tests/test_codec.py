@@ -122,23 +122,3 @@ def test_nan_image_is_refused(scene):
     image[5, 6, 0] = np.nan
     with pytest.raises(InputError, match="NaN"):
         encode_image(image, check_domain(scene.curves, 64, 64, fit=True), EncodeSettings(steps=2))
-
-
-def test_sample_sets_size_their_mesh_by_the_sample_count(scene):
-    from dfc.geometry.triangulate import triangulate
-    from dfc.rate import NOISY_SAMPLES_PER_TRIANGLE, sample_mesh_size
-
-    curves = scene.curves
-    floor = triangulate(curves, max_triangles=None).n_triangles  # at least what the curves force
-    many, _ = sample_mesh_size(curves, EncodeSettings(), 10**9)
-    assert many.max_triangles == 2000  # capped at the default mesh
-    few, few_mesh = sample_mesh_size(curves, EncodeSettings(), 10)
-    assert 2 < few.max_triangles <= floor
-    assert triangulate(curves, max_triangles=few.max_triangles).n_triangles <= few.max_triangles
-    assert few_mesh.n_triangles <= few.max_triangles  # the mesh the fit runs on, built once
-    n = 300 * NOISY_SAMPLES_PER_TRIANGLE
-    middle, _ = sample_mesh_size(curves, EncodeSettings(), n)
-    assert middle.max_triangles == max(300, few.max_triangles)
-    given = EncodeSettings(max_area=5.0)
-    kept, no_mesh = sample_mesh_size(curves, given, 10)
-    assert kept is given and no_mesh is None  # an explicit mesh size wins
