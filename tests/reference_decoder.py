@@ -1,7 +1,7 @@
 """An independent ``.dfield`` decoder written from ``spec/dfield.md`` and ``spec/field.md`` alone.
 
 It exists to prove that the two documents suffice to evaluate a field: it imports nothing from dfc
-(only numpy, zstandard and DracoPy), skips CRCs and most validation, and evaluates ``f(x, t)`` in
+(only numpy, zstandard, DracoPy and constriction, the libraries the spec names), skips CRCs and most validation, and evaluates ``f(x, t)`` in
 float64 throughout. Section numbers below are those of the spec documents ("D" = dfield.md,
 "F" = field.md).
 
@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import struct
 
+import constriction
 import DracoPy
 import numpy as np
 import zstandard
@@ -122,6 +123,85 @@ def _decode_features(data: bytes) -> np.ndarray:
     return (offset[None, :, None] + q.astype(np.float32) * scale[None, :, None]).transpose(0, 2, 1)
 
 
+def _feac_header(data: bytes):
+    """FEAC chunk -> (S, N, K, bits, scale, offset, class models [(lo, hi, d1, d2, m)] * 3, stream words) (D §6.5)."""
+    S, N, K, bits = struct.unpack_from("<IIHB", data)
+    scale = np.frombuffer(data, "<f4", K, 12)
+    offset = np.frombuffer(data, "<f4", K, 12 + 4 * K)
+    pos = 12 + 8 * K
+    models = [struct.unpack_from("<iiHHH", data, pos + 16 * c) for c in range(3)]
+    words = np.frombuffer(data[pos + 48:], "<u4").astype(np.uint32)
+    return S, N, K, bits, scale, offset, models, words
+
+
+def _model_frequencies(lo: int, hi: int, d1: int, d2: int, m: int) -> list[int]:
+    """Frequencies (out of 2**24) of the symbols v - lo, v = lo .. hi (D §6.6), in Python integers."""
+    a = [1 << 30]
+    for j in range(max(-lo, hi)):
+        a.append(a[-1] * (d1 if j < m else d2) // 65536)
+    w = {v: a[abs(v)] for v in range(lo, hi + 1)}
+    n, G = hi - lo + 1, sum(w.values())
+    T = (1 << 24) - n
+    c = {v: w[v] * T // G for v in w if v != 0}
+    c[0] = T - sum(c.values())
+    return [c[v] + 1 for v in range(lo, hi + 1)]
+
+
+def _decode_feac(data: bytes, neighbours: list[list[int]], classes: np.ndarray) -> np.ndarray:
+    """FEAC chunk -> bank (S, N, K) float32 (D §6.5, §6.6), rows rebuilt one by one in row order.
+    neighbours[r]: every neighbour row of r; classes (N,): the row classes."""
+    S, N, K, bits, scale, offset, models, words = _feac_header(data)
+    decoder = constriction.stream.queue.RangeDecoder(words)
+    e = np.zeros((S, N, K), np.int64)
+    for s in range(S):
+        for c in range(3):
+            rows = np.flatnonzero(classes == c)
+            lo, hi, d1, d2, m = models[c]
+            for k in range(K):
+                if hi == lo or not len(rows):
+                    continue
+                freq = np.array(_model_frequencies(lo, hi, d1, d2, m), np.float64)
+                # counts summing to 2**24 - n: constriction's fast quantiser adds one to each (D §6.6)
+                model = constriction.stream.model.Categorical(freq - 1.0, perfect=False)
+                e[s, rows, k] = np.asarray(decoder.decode(model, len(rows)), np.int64) + lo
+    q = np.zeros((S, N, K), np.int64)
+    for r in range(N):
+        earlier = [j for j in neighbours[r] if j < r]
+        if earlier:
+            total = q[:, earlier].sum(axis=1)
+            q[:, r] = (total + len(earlier) // 2) // len(earlier) + e[:, r]
+        else:
+            q[:, r] = (1 << (bits - 1)) + e[:, r]
+    return offset[None, None, :] + q.astype(np.float32) * scale[None, None, :]
+
+
+def _decode_mlpq(data: bytes) -> dict[str, np.ndarray]:
+    """MLPQ chunk -> name -> float64 array (D §6.7)."""
+    n, _ = struct.unpack_from("<II", data)
+    raw = _unzstd(data[8:])
+    records = [struct.unpack_from("<60sI4I", raw, 80 * i) for i in range(n)]
+    bits = list(raw[80 * n:81 * n])
+    pos = 81 * n
+    shapes = [tuple(dims[:rank]) for _, rank, *dims in records]
+    n_scales = sum(shape[0] for b, shape in zip(bits, shapes) if b)
+    scales = np.frombuffer(raw, "<f2", n_scales, pos).astype(np.float32)
+    pos += 2 * n_scales
+    out, at = {}, 0
+    for (name, _, *_), b, shape in zip(records, bits, shapes):
+        size = int(np.prod(shape))
+        if b == 0:
+            values = np.frombuffer(raw, "<f2", size, pos).astype(np.float64)
+            pos += 2 * size
+        else:
+            dtype = "<i1" if b <= 8 else "<i2"
+            q = np.frombuffer(raw, dtype, size, pos).reshape(shape).astype(np.float32)
+            pos += np.dtype(dtype).itemsize * size
+            values = (q * scales[at:at + shape[0], None]).astype(np.float64)  # binary32 product
+            at += shape[0]
+        out[name.rstrip(b"\0").decode("ascii")] = values.reshape(shape)
+    return out
+
+
 def _decode_mlp(data: bytes) -> dict[str, np.ndarray]:
     """MLPW chunk -> name -> float64 array (D §6.4)."""
     n, total = struct.unpack_from("<II", data)
@@ -139,11 +219,9 @@ def _decode_mlp(data: bytes) -> dict[str, np.ndarray]:
 class ReferenceField:
     """A decoded field: geometry tables (F §§2–4) plus the bank and the network."""
 
-    def __init__(self, header: dict, vertices, faces, disc_edges, curve_faces, curve_ends, control_points,
-                 bank, mlp):
+    def __init__(self, header: dict, vertices, faces, disc_edges, curve_faces, curve_ends, control_points, mlp):
         self.header, self.vertices, self.faces = header, vertices, faces
         self.domain = np.asarray(header["domain"], np.float64)
-        self.bank = bank.astype(np.float64)
         self.mlp = mlp
         self.curve_faces, self.curve_ends, self.control_points = curve_faces, curve_ends, control_points
         self._build_layout(disc_edges)
@@ -154,8 +232,27 @@ class ReferenceField:
         header = json.loads(_unzstd(ch[b"HEAD"]))
         vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"])
         edges, ctri, ends, cp = _decode_topology(ch[b"TOPO"], vertices, faces)
-        return cls(header, vertices, faces, edges, ctri, ends, cp, _decode_features(ch[b"FEAT"]),
-                   _decode_mlp(ch[b"MLPW"]))
+        mlp = _decode_mlp(ch[b"MLPW"]) if b"MLPW" in ch else _decode_mlpq(ch[b"MLPQ"])
+        field = cls(header, vertices, faces, edges, ctri, ends, cp, mlp)
+        bank = _decode_features(ch[b"FEAT"]) if b"FEAT" in ch else _decode_feac(ch[b"FEAC"], *field.row_graph())
+        if bank.shape[1] != field.n_rows:
+            raise ValueError(f"the bank has {bank.shape[1]} rows, the layout needs {field.n_rows}")
+        field.bank = bank.astype(np.float64)
+        return field
+
+    def row_graph(self) -> tuple[list[list[int]], np.ndarray]:
+        """Neighbour rows of every row and the row classes (D §6.5)."""
+        groups = [np.concatenate([self.c_start, self.c_end], axis=1)]
+        if len(self.curve_faces):
+            groups.append(np.stack([self.far_a, self.far_b, self.n_vertex_rows + np.arange(len(self.curve_faces))], 1))
+        neighbours = [set() for _ in range(self.n_rows)]
+        for group in groups:
+            for rows in group.tolist():
+                for r in rows:
+                    neighbours[r].update(j for j in rows if j != r)
+        classes = np.full(self.n_rows, 2)
+        classes[:self.n_vertex_rows] = np.repeat((self.k > 0).astype(int), np.maximum(1, 2 * self.k))
+        return [sorted(n) for n in neighbours], classes
 
     # ------------------------------------------------------------------------------------- layout
     def _build_layout(self, disc_edges: np.ndarray) -> None:
@@ -196,8 +293,6 @@ class ReferenceField:
         self.c_alpha = np.where(kv > 0, np.mod(ang_n - a_j, TWO_PI), 0.0)
         self.c_beta, self.c_theta = beta, np.where(kv > 0, theta, 1.0)
         self.n_rows = self.n_vertex_rows + len(self.curve_faces)
-        if self.bank.shape[1] != self.n_rows:
-            raise ValueError(f"FEAT has {self.bank.shape[1]} rows, the layout needs {self.n_rows}")
 
         # Curves (F §5.4): corner positions of A, B, apex; far rows; chord frames.
         self.face_curve = np.full(len(faces), -1)

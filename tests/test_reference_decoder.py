@@ -22,8 +22,10 @@ from dfc.io.meshcodec import roundtrip_mesh
 
 from .reference_decoder import ReferenceField, read_chunks
 
-GOLDEN = Path(__file__).parent / "golden" / "valid" / "tiny.dfield"
+GOLDEN = Path(__file__).parent / "golden" / "valid"
 ATOL = 1e-4
+CODINGS = {"1.0": {"feature_coding": "plain"}, "1.1": {"feature_coding": "predicted", "weight_bits": 6}}
+"""Chunk encodings of a version: FEAT + MLPW (1.0) or FEAC + MLPQ (1.1)."""
 
 
 def _junction() -> Curves:
@@ -49,15 +51,16 @@ def mesh(scene):
     return roundtrip_mesh(triangulate(curves(), max_triangles=max_triangles), 16)
 
 
-def _encode(mesh, *, n_slices=1, times=None, seed=0, **model_kw):
-    """The bytes of a random field on ``mesh``, decoded by dfc (a model) and by the reference decoder."""
+def _encode(mesh, *, n_slices=1, times=None, seed=0, coding="1.1", **model_kw):
+    """The bytes of a random field on ``mesh`` written with the ``CODINGS[coding]`` chunks, decoded by dfc (a model)
+    and by the reference decoder."""
     field = FeatureField(mesh, dim=5, seed=seed, n_slices=n_slices, times=times)
     model = FieldModel(field, ["r", "g", "b"], hidden=16, layers=2, seed=seed, **model_kw)
     with torch.no_grad():
         field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(seed))
         for lin in model.decoder.linears():
             lin.weight.mul_(2.0)
-    blob, _ = encode_dfield(to_contents(model), feature_bits=8)
+    blob, _ = encode_dfield(to_contents(model), feature_bits=8, **CODINGS[coding])
     return loads(blob), ReferenceField.from_bytes(blob), blob
 
 
@@ -139,8 +142,10 @@ def test_geometry_and_layout_match_dfc(scene, mesh):
     assert len(ref.curve_faces) >= 2 and (ref.k == 1).any() and ref.k.max() == SCENES[scene][2]
 
 
-def test_static_relu_field_agrees_everywhere_continuous(mesh):
-    model, ref, _ = _encode(mesh, activation="relu")
+@pytest.mark.parametrize("coding", sorted(CODINGS))
+def test_static_relu_field_agrees_everywhere_continuous(mesh, coding):
+    model, ref, blob = _encode(mesh, activation="relu", coding=coding)
+    assert ({b"FEAT", b"MLPW"} if coding == "1.0" else {b"FEAC", b"MLPQ"}) <= set(read_chunks(blob))
     edges, sides = _edges(ref)
     disc = {tuple(e) for e in np.sort(mesh.disc_edges, axis=1).tolist()}
     cont = np.array([tuple(e) not in disc for e in edges.tolist()])
@@ -210,11 +215,12 @@ def test_raw_mesh_encoding_agrees():
     _agree(model, ref, np.concatenate([_random(ref, 1000, 8), _curve_points(ref, (0.5,))[0]]))
 
 
-def test_golden_tiny_file_agrees():
-    blob = GOLDEN.read_bytes()
+@pytest.mark.parametrize("name", ["tiny", "tiny_coded"])
+def test_golden_tiny_file_agrees(name):
+    blob = (GOLDEN / f"{name}.dfield").read_bytes()
     model = from_contents(decode_dfield(blob))
     ref = ReferenceField.from_bytes(blob)
-    expect = json.loads(GOLDEN.with_suffix(".json").read_text())
+    expect = json.loads((GOLDEN / f"{name}.json").read_text())
     assert ref.bank.shape == tuple(expect["features_shape"])
     assert ref.bank.sum() == pytest.approx(expect["features_sum"], rel=1e-9)
     xy = np.concatenate([_random(ref, 2000, 7), _curve_points(ref, (0.4,))[0]])

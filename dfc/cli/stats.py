@@ -28,7 +28,8 @@ def file_stats(path) -> dict:
                  "discontinuous_edges": m["disc_edges"], "curved_triangles": m["curves"],
                  "encoding": m["encoding"], "bits": m["bits"]},
         "parameters": {"features": feat["slices"] * feat["rows"] * feat["width"], "feature_rows": feat["rows"],
-                       "feature_dim": feat["width"], "feature_bits": feat["bits"], "mlp": info["mlp"]["parameters"]},
+                       "feature_dim": feat["width"], "feature_bits": feat["bits"], "feature_coding": feat["coding"],
+                       "mlp": info["mlp"]["parameters"], "mlp_weight_bits": info["mlp"]["weight_bits"] or None},
         "model": header["model"],
         "chunk_bytes": info["chunks"],
         "bits_per_pixel": None if not pixels else 8.0 * info["file_bytes"] / pixels,
@@ -57,8 +58,10 @@ def command(input_path, as_json):
         ("discontinuous vertices", m["discontinuous_vertices"]), ("discontinuous edges", m["discontinuous_edges"]),
         ("curved triangles", m["curved_triangles"]),
         ("mesh encoding", f"{m['encoding']}" + (f", {m['bits']} bits" if m["encoding"] == "draco" else "")),
-        ("feature parameters", f"{p['features']} ({p['feature_rows']} rows x {p['feature_dim']}, {p['feature_bits']} bits)"),
-        ("MLP parameters", p["mlp"]),
+        ("feature parameters", f"{p['features']} ({p['feature_rows']} rows x {p['feature_dim']}, {p['feature_bits']} bits, "
+                               f"{p['feature_coding']})"),
+        ("MLP parameters", f"{p['mlp']} (" + ("float16" if not p["mlp_weight_bits"] else
+                                               f"{'/'.join(map(str, p['mlp_weight_bits']))}-bit weights") + ")"),
         ("bits per pixel", "n/a" if s["bits_per_pixel"] is None else f"{s['bits_per_pixel']:.3f}"),
     ]
     rows += [(f"chunk {name}", f"{size} bytes") for name, size in s["chunk_bytes"].items()]

@@ -10,11 +10,16 @@ HDR signals: the MLP output ``y`` stands for ``log(1 + v)`` and the model return
 Quantised mode (quantisation-aware fine-tuning). Setting ``model.quantization =
 {"feature_bits": 8}`` registers ``torch.nn.utils.parametrize`` parametrisations, so that
 ``field.bank`` reads as ``fake_quantize(bank, 8)`` and every decoder weight and bias reads as
-``fake_fp16(W)`` — exactly the values a ``.dfield`` file stores — with straight-through gradients
+``fake_fp16(W)``; with ``"weight_bits": b`` as well, the weight matrices read as
+``fake_quantize_weights(W, b)`` (b-bit integers per row) and stop training (``requires_grad`` off until the mode is
+switched off: moving weights across quantisation steps makes the output jump, so the features and biases adapt to
+fixed integer weights instead), the biases staying fp16 — exactly the values a ``.dfield`` file stores — with
+straight-through gradients
 into the same underlying Parameters (an optimiser built before keeps working). ``None`` removes
 them and leaves the raw float32 values. While it is on, ``state_dict()`` keys change (the raw tensors
 sit under ``…parametrizations.<name>.original``): writers should read ``field.bank`` and the
-decoder's ``linears()`` attributes, which give the quantised values.
+decoder's ``linears()`` attributes, which give the quantised values (integer weight matrices: the raw tensor, which
+the writer quantises exactly as the forward does, ``dfc.io.dfield.to_contents``).
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from torch.nn.utils import parametrize
 
 from ..errors import DfcError, FormatError
 from .mlp import ACTIVATIONS, MLP, OneBlob
-from .quantize import MAX_FEATURE_BITS, FakeFp16, FakeQuantize
+from .quantize import MAX_FEATURE_BITS, FakeFp16, FakeQuantize, FakeQuantizeWeights, check_weight_bits
 
 __all__ = ["TRANSFORMS", "FieldModel"]
 
@@ -111,37 +116,48 @@ class FieldModel(nn.Module):
         y = self.decoder(F)
         return torch.expm1(y) if self.transform == "log" else y
 
-    def render(self, width: int, height: int, window=None, *, spp: int = 1, t=None):
+    def render(self, width: int, height: int, window=None, *, spp: int = 1, t=None, edge_spp: int = 0):
         """Raster (height, width, C) float32 of ``window`` (x0, y0, x1, y1; default the domain), see ``dfc.render``."""
         from ..render import render
 
-        return render(self, width, height, window, spp=spp, t=t)
+        return render(self, width, height, window, spp=spp, t=t, edge_spp=edge_spp)
 
     # -- quantisation-aware mode --------------------------------------------------------------
     @property
     def quantization(self) -> dict | None:
-        """None, or ``{"feature_bits": b}``: forward sees features quantised to b bits and fp16 decoder weights."""
+        """None, or ``{"feature_bits": b[, "weight_bits": w]}``: forward sees features quantised to b bits, weight
+        matrices as w-bit integers per row (fp16 without ``weight_bits`` or with None) and fp16 biases."""
         return None if self._quantization is None else dict(self._quantization)
 
     @quantization.setter
     def quantization(self, value: dict | None) -> None:
         if value is not None:
-            ok = isinstance(value, dict) and set(value) == {"feature_bits"}
+            ok = isinstance(value, dict) and "feature_bits" in value and set(value) <= {"feature_bits", "weight_bits"}
             bits = value["feature_bits"] if ok else None
             if not (isinstance(bits, int) and 1 <= bits <= MAX_FEATURE_BITS):
-                raise ValueError(f"quantization must be None or {{'feature_bits': 1..{MAX_FEATURE_BITS}}}, got {value!r}")
+                raise ValueError(f"quantization must be None or {{'feature_bits': 1..{MAX_FEATURE_BITS}"
+                                 f"[, 'weight_bits': None or an integer]}}, got {value!r}")
+            if value.get("weight_bits") is not None:
+                check_weight_bits(value["weight_bits"])
         if self._quantization is not None:
             parametrize.remove_parametrizations(self.field, "bank", leave_parametrized=False)
             for lin in self.decoder.linears():
                 for name in ("weight", "bias"):
                     parametrize.remove_parametrizations(lin, name, leave_parametrized=False)
+                lin.weight.requires_grad_(True)
         self._quantization = None
         if value is not None:
+            weight_bits = value.get("weight_bits")
             parametrize.register_parametrization(self.field, "bank", FakeQuantize(value["feature_bits"]))
             for lin in self.decoder.linears():
-                for name in ("weight", "bias"):
-                    parametrize.register_parametrization(lin, name, FakeFp16())
+                weights = FakeFp16() if weight_bits is None else FakeQuantizeWeights(weight_bits)
+                parametrize.register_parametrization(lin, "weight", weights)
+                parametrize.register_parametrization(lin, "bias", FakeFp16())
             self._quantization = {"feature_bits": value["feature_bits"]}
+            if weight_bits is not None:
+                self._quantization["weight_bits"] = weight_bits
+            for lin in self.decoder.linears():  # integer weights stay as they were quantised: features adapt
+                lin.parametrizations["weight"].original.requires_grad_(weight_bits is None)
 
     # -- serialisation ------------------------------------------------------------------------
     def config(self) -> dict:

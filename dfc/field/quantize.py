@@ -1,12 +1,20 @@
-"""Uniform quantisation of feature banks and fp16 rounding of MLP weights.
+"""Uniform quantisation of feature banks, integer quantisation of MLP weight matrices and fp16 rounding of the
+other MLP parameters.
 
-The same functions serve the writer (``quantize_features``), the reader (``dequantize_features``)
-and quantisation-aware fine-tuning (``fake_quantize`` with a straight-through gradient), so the
-values the encoder measures are exactly those the decoder reconstructs.
+The same functions serve the writer (``quantize_features``, ``quantize_weights``), the reader
+(``dequantize_features``, ``dequantize_weights``) and quantisation-aware fine-tuning (``fake_quantize``,
+``fake_quantize_weights``, ``fake_fp16``, with straight-through gradients), so the values the encoder measures
+are exactly those the decoder reconstructs.
 
 Features are quantised per feature channel: for channel k, ``offset[k] = min``, ``scale[k] =
 (max - min) / (2**bits - 1)`` over all rows (and time slices), ``q = round((F - offset) / scale)``,
 and ``F' = offset + q * scale`` computed in float32.
+
+Weight matrices W (out, in) are quantised symmetrically per output row: ``scale[o]`` is ``max |W[o]| /
+(2**(bits-1) - 1)`` rounded to float16 (1 for an all-zero row or one whose scale is no positive normal float16),
+``q = round(W / scale)`` (half to even) clamped to ``[-(2**(bits-1) - 1), 2**(bits-1) - 1]`` and ``W' = q * scale``,
+all in float32 torch arithmetic on the tensor's own device (IEEE division and product, so CPU and GPU agree bit for
+bit).
 """
 
 from __future__ import annotations
@@ -16,6 +24,7 @@ import torch
 from torch import nn
 
 MAX_FEATURE_BITS = 16
+MIN_WEIGHT_BITS, MAX_WEIGHT_BITS = 2, 16
 
 
 def feature_ranges(F: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
@@ -74,3 +83,48 @@ class FakeFp16(nn.Module):
 
     def forward(self, X: torch.Tensor) -> torch.Tensor:
         return fake_fp16(X)
+
+
+def check_weight_bits(bits) -> int:
+    """``bits`` when it is an integer in ``MIN_WEIGHT_BITS .. MAX_WEIGHT_BITS``, else ValueError."""
+    if not (isinstance(bits, int) and not isinstance(bits, bool) and MIN_WEIGHT_BITS <= bits <= MAX_WEIGHT_BITS):
+        raise ValueError(f"weight bits must be an integer in {MIN_WEIGHT_BITS}..{MAX_WEIGHT_BITS}, got {bits!r}")
+    return bits
+
+
+def weight_scales(W: torch.Tensor, bits: int) -> torch.Tensor:
+    """Per-row scales (out,) float32 (each a float16 value) of a weight matrix W (out, in), on W's device."""
+    top = float(2 ** (check_weight_bits(bits) - 1) - 1)
+    scale = (W.detach().float().abs().amax(dim=1) / top).half().float()
+    normal = (scale >= torch.finfo(torch.float16).tiny) & torch.isfinite(scale)
+    return torch.where(normal, scale, torch.ones_like(scale))
+
+
+def quantize_weights(W: torch.Tensor, bits: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """W (out, in) float -> (q (out, in) int32, scale (out,) float32), on W's device."""
+    scale = weight_scales(W, bits)
+    top = 2 ** (bits - 1) - 1
+    q = torch.clamp(torch.round(W.detach().float() / scale[:, None]), -top, top)
+    return q.to(torch.int32), scale
+
+
+def dequantize_weights(q: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """Inverse of ``quantize_weights``: (out, in) float32 ``q * scale`` per row."""
+    return q.float() * scale.float()[:, None]
+
+
+def fake_quantize_weights(W: torch.Tensor, bits: int) -> torch.Tensor:
+    """W (out, in) quantised and dequantised exactly as the file stores it, with a straight-through gradient."""
+    q, scale = quantize_weights(W, bits)
+    return W + (dequantize_weights(q, scale).to(W.dtype) - W).detach()
+
+
+class FakeQuantizeWeights(nn.Module):
+    """``torch.nn.utils.parametrize`` parametrisation: a weight matrix reads as ``fake_quantize_weights(X, bits)``."""
+
+    def __init__(self, bits: int):
+        super().__init__()
+        self.bits = check_weight_bits(bits)
+
+    def forward(self, X: torch.Tensor) -> torch.Tensor:
+        return fake_quantize_weights(X, self.bits)

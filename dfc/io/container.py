@@ -5,7 +5,11 @@ chunks after a GLB-style 16-byte header.
 ``decode_dfield`` parse one back, checking every MUST of the spec before anything is allocated or
 decompressed, and raise exactly one ``FormatError`` on any violation. ``read_dfield_info`` reads the
 header and the chunks' fixed-size fields only (for ``dfc stats``). The mesh chunks live in
-``dfc.io.meshcodec``.
+``dfc.io.meshcodec``, the predicted, range-coded feature bank (``FEAC``) in ``dfc.io.featcodec``.
+
+Content 1.1 adds two critical chunks, each an alternative to a 1.0 chunk in the same place: ``FEAC`` for ``FEAT``
+and ``MLPQ`` (integer weight matrices) for ``MLPW``. A 1.0 decoder refuses them as unknown critical chunks; this
+one reads both versions.
 """
 
 from __future__ import annotations
@@ -19,10 +23,19 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 import zstandard
 
 from ..errors import FormatError, MeshError
-from ..field.quantize import MAX_FEATURE_BITS, dequantize_features, quantize_features
+from ..field.quantize import (
+    MAX_FEATURE_BITS,
+    MAX_WEIGHT_BITS,
+    MIN_WEIGHT_BITS,
+    dequantize_features,
+    dequantize_weights,
+    quantize_features,
+    quantize_weights,
+)
 from ..geometry.mesh import Mesh
 from .atomic import write_bytes_atomic
 from .meshcodec import compress, decode_mesh, decompress, encode_roundtripped, mesh_info
@@ -40,8 +53,8 @@ __all__ = [
 ]
 
 SIGNATURE = b"\x89DFL\r\n\x1a\n"
-CONTAINER_VERSION = (1, 0)
-CONTENT_VERSION = (1, 0)
+CONTAINER_VERSION = (1, 1)
+CONTENT_VERSION = (1, 1)
 MAX_FILE_BYTES = 2**30
 MAX_CHUNK = 2**30 - 1
 MAX_HEADER_JSON = 2**20
@@ -49,7 +62,10 @@ MAX_JSON_DEPTH = 32
 MAX_ROWS, MAX_K, MAX_S, MAX_FEATURE_ELEMENTS = 2**27, 256, 4096, 2**28
 MAX_TENSORS, MAX_RANK, MAX_MLP_ELEMENTS = 256, 4, 2**24
 MAX_CHANNELS = 64
-CRITICAL_ORDER = (b"HEAD", b"MESH", b"TOPO", b"FEAT", b"MLPW", b"DEND")
+CRITICAL_ORDER = ((b"HEAD",), (b"MESH",), (b"TOPO",), (b"FEAT", b"FEAC"), (b"MLPW", b"MLPQ"), (b"DEND",))
+"""The critical chunks in file order; each position holds exactly one of its alternatives."""
+FEATURE_CODINGS = ("plain", "predicted")
+"""``encode_dfield``'s feature codings: ``FEAT`` (zstd of the quantised bank) or ``FEAC`` (``dfc.io.featcodec``)."""
 
 _FILE_HEAD = struct.Struct("<8sHHI")
 _FEAT_HEAD = struct.Struct("<IIHBx")
@@ -106,6 +122,10 @@ def _check_header(h, S: int) -> None:
     elif not (isinstance(times, list) and len(times) == S and all(_is_number(t) for t in times)
               and all(a < b for a, b in zip(times, times[1:]))):
         raise FormatError(f"HEAD: times must be {S} finite numbers, strictly increasing")
+    size = h.get("pixel_size")
+    if size is not None and not (isinstance(size, list) and len(size) == 2 and all(_is_number(v) and v > 0
+                                                                                  for v in size)):
+        raise FormatError("HEAD: pixel_size must be null or two positive finite numbers")
     if not isinstance(h["model"], dict) or not isinstance(h.get("encoder", {}), dict):
         raise FormatError("HEAD: model and encoder must be objects")
 
@@ -196,20 +216,30 @@ def _split_chunks(buf: bytes) -> tuple[dict[bytes, memoryview], dict[str, int]]:
         if ctype[0] & 0x20:  # ancillary
             if expect == 0:
                 raise FormatError(f"{name}: ancillary chunk before HEAD")
-        elif ctype != CRITICAL_ORDER[expect]:
-            known = ctype in CRITICAL_ORDER
+        elif ctype not in CRITICAL_ORDER[expect]:
+            known = any(ctype in alternatives for alternatives in CRITICAL_ORDER)
             raise FormatError(f"{name}: {'critical chunk out of order' if known else 'unknown critical chunk'}"
-                              f", expected {CRITICAL_ORDER[expect].decode()}")
+                              f", expected {_names(CRITICAL_ORDER[expect])}")
         else:
             chunks[ctype] = data
             expect += 1
         sizes[name] = sizes.get(name, 0) + 12 + padded
         pos += 12 + padded
     if expect < len(CRITICAL_ORDER):
-        raise FormatError(f"file ends before chunk {CRITICAL_ORDER[expect].decode()} (truncated?)")
+        raise FormatError(f"file ends before chunk {_names(CRITICAL_ORDER[expect])} (truncated?)")
     if len(chunks[b"DEND"]):
         raise FormatError("DEND: chunk is not empty")
     return chunks, sizes
+
+
+def _names(alternatives: tuple[bytes, ...]) -> str:
+    return " or ".join(t.decode() for t in alternatives)
+
+
+def _one(chunks: dict, alternatives: tuple[bytes, ...]) -> tuple[bytes, memoryview]:
+    """(type, data) of the chunk present among ``alternatives`` (``_split_chunks`` guarantees exactly one)."""
+    ctype = next(t for t in alternatives if t in chunks)
+    return ctype, chunks[ctype]
 
 
 def _read(path, max_bytes: int) -> bytes:
@@ -221,18 +251,18 @@ def _read(path, max_bytes: int) -> bytes:
 
 
 # ----------------------------------------------------------------------------------------------- FEAT / MLPW
-def _feat_info(data) -> dict:
+def _feat_info(data, chunk: str = "FEAT") -> dict:
     if len(data) < _FEAT_HEAD.size:
-        raise FormatError("FEAT: chunk shorter than its fixed fields")
+        raise FormatError(f"{chunk}: chunk shorter than its fixed fields")
     S, N, K, bits = _FEAT_HEAD.unpack_from(data)
     if data[11]:
-        raise FormatError("FEAT: reserved field is not zero")
+        raise FormatError(f"{chunk}: reserved field is not zero")
     if not (1 <= S <= MAX_S and 1 <= N <= MAX_ROWS and 1 <= K <= MAX_K and S * N * K <= MAX_FEATURE_ELEMENTS):
-        raise FormatError(f"FEAT: bank shape ({S}, {N}, {K}) outside the limits")
+        raise FormatError(f"{chunk}: bank shape ({S}, {N}, {K}) outside the limits")
     if not 1 <= bits <= MAX_FEATURE_BITS:
-        raise FormatError(f"FEAT: {bits} bits, expected 1..{MAX_FEATURE_BITS}")
+        raise FormatError(f"{chunk}: {bits} bits, expected 1..{MAX_FEATURE_BITS}")
     if len(data) < _FEAT_HEAD.size + 8 * K:
-        raise FormatError("FEAT: chunk too short for its scales and offsets")
+        raise FormatError(f"{chunk}: chunk too short for its scales and offsets")
     return {"slices": S, "rows": N, "width": K, "bits": bits}
 
 
@@ -264,29 +294,29 @@ def _encode_features(F: np.ndarray, bits: int, level: int) -> bytes:
             + compress(body, level))
 
 
-def _mlp_table(data) -> list[tuple[str, tuple[int, ...]]]:
+def _mlp_table(data, chunk: str = "MLPW") -> list[tuple[str, tuple[int, ...]]]:
     if len(data) < _MLP_HEAD.size:
-        raise FormatError("MLPW: chunk shorter than its fixed fields")
+        raise FormatError(f"{chunk}: chunk shorter than its fixed fields")
     n, total = _MLP_HEAD.unpack_from(data)
     if not 1 <= n <= MAX_TENSORS or total > MAX_MLP_ELEMENTS:
-        raise FormatError(f"MLPW: {n} tensors / {total} elements outside the limits")
+        raise FormatError(f"{chunk}: {n} tensors / {total} elements outside the limits")
     if len(data) < _MLP_HEAD.size + n * _MLP_RECORD.size:
-        raise FormatError("MLPW: chunk too short for its tensor table")
+        raise FormatError(f"{chunk}: chunk too short for its tensor table")
     table, count = [], 0
     for i in range(n):
         raw_name, rank, *dims = _MLP_RECORD.unpack_from(data, _MLP_HEAD.size + i * _MLP_RECORD.size)
         name = raw_name.rstrip(b"\0")
         if b"\0" in name or not _NAME.fullmatch(name.decode("latin-1")):
-            raise FormatError(f"MLPW: tensor {i} has an invalid name")
+            raise FormatError(f"{chunk}: tensor {i} has an invalid name")
         if rank > MAX_RANK or any(d < 1 for d in dims[:rank]) or any(dims[rank:]):
-            raise FormatError(f"MLPW: tensor {name.decode()} has an invalid shape")
+            raise FormatError(f"{chunk}: tensor {name.decode()} has an invalid shape")
         shape = tuple(dims[:rank])
         count += math.prod(shape)
         if count > total:
-            raise FormatError("MLPW: tensor sizes exceed the declared element count")
+            raise FormatError(f"{chunk}: tensor sizes exceed the declared element count")
         table.append((name.decode("ascii"), shape))
     if count != total or len({t[0] for t in table}) != n:
-        raise FormatError("MLPW: element count mismatch or repeated tensor name")
+        raise FormatError(f"{chunk}: element count mismatch or repeated tensor name")
     return table
 
 
@@ -326,16 +356,90 @@ def _encode_mlp(mlp: dict[str, np.ndarray], level: int) -> bytes:
     return _MLP_HEAD.pack(len(mlp), flat.size) + b"".join(records) + compress(flat.tobytes(), level)
 
 
+def _mlpq_width(bits: int) -> int:
+    """Bytes per stored value of an ``MLPQ`` tensor of ``bits`` (0: float16)."""
+    return 2 if bits == 0 or bits > 8 else 1
+
+
+def _mlpq_table(data) -> tuple[bytes, list[tuple[str, tuple[int, ...]]], list[int], int]:
+    """(decompressed payload, tensor table, bits per tensor (0: float16), offset of the scales) of ``MLPQ`` data."""
+    if len(data) < _MLP_HEAD.size:
+        raise FormatError("MLPQ: chunk shorter than its fixed fields")
+    n, total = _MLP_HEAD.unpack_from(data)
+    if not 1 <= n <= MAX_TENSORS or total > MAX_MLP_ELEMENTS:
+        raise FormatError(f"MLPQ: {n} tensors / {total} elements outside the limits")
+    payload = bytes(data[_MLP_HEAD.size:])
+    raw = decompress(payload, _frame_size(payload, (_MLP_RECORD.size + 1) * n + 4 * total, "MLPQ"), "MLPQ")
+    table = _mlp_table(_MLP_HEAD.pack(n, total) + raw[:_MLP_RECORD.size * n], "MLPQ")
+    pos = _MLP_RECORD.size * n
+    if len(raw) < pos + n:
+        raise FormatError("MLPQ: payload too short for its bit depths")
+    bits = list(raw[pos:pos + n])
+    for b, (name, shape) in zip(bits, table):
+        if b and not (MIN_WEIGHT_BITS <= b <= MAX_WEIGHT_BITS and len(shape) == 2):
+            raise FormatError(f"MLPQ: tensor {name} has {b} bits (integers need 2..16 bits and rank 2)")
+    return raw, table, bits, pos + n
+
+
+def _decode_mlpq(data) -> dict[str, np.ndarray]:
+    raw, table, bits, pos = _mlpq_table(data)
+    n_scales = sum(shape[0] for b, (_, shape) in zip(bits, table) if b)
+    if len(raw) != pos + 2 * n_scales + sum(_mlpq_width(b) * math.prod(s) for b, (_, s) in zip(bits, table)):
+        raise FormatError("MLPQ: payload size does not match its tensors")
+    scales = np.frombuffer(raw, "<f2", n_scales, pos).astype(np.float32)
+    if not (np.all(np.isfinite(scales)) and np.all(scales > 0)):
+        raise FormatError("MLPQ: a scale is not finite and positive")
+    pos += 2 * n_scales
+    out, at_scale = {}, 0
+    for b, (name, shape) in zip(bits, table):
+        size = math.prod(shape)
+        if b == 0:
+            values = np.frombuffer(raw, "<f2", size, pos).astype(np.float32)
+        else:
+            q = np.frombuffer(raw, "<i1" if b <= 8 else "<i2", size, pos).astype(np.int32)
+            if np.abs(q).max(initial=0) > 2 ** (b - 1) - 1:
+                raise FormatError(f"MLPQ: tensor {name} holds an integer outside ±(2**{b - 1} - 1)")
+            scale = scales[at_scale:at_scale + shape[0]]
+            at_scale += shape[0]
+            values = dequantize_weights(torch.from_numpy(q.reshape(shape)), torch.from_numpy(scale)).numpy()
+        if not np.all(np.isfinite(values)):
+            raise FormatError(f"MLPQ: tensor {name} has a value that is not finite")
+        out[name] = values.reshape(shape)
+        pos += _mlpq_width(b) * size
+    return out
+
+
+def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> bytes:
+    """``MLPQ`` data: rank-2 tensors as ``weight_bits``-bit integers per row, the others as float16."""
+    head = _encode_mlp(mlp, level)  # checks names, shapes and finiteness; its table is ours
+    n = len(mlp)
+    records = head[_MLP_HEAD.size:_MLP_HEAD.size + n * _MLP_RECORD.size]
+    bits, scales, values = [], [], []
+    for w in mlp.values():
+        w = np.asarray(w, dtype=np.float32)
+        if w.ndim == 2:
+            q, scale = quantize_weights(torch.from_numpy(w), weight_bits)
+            bits.append(weight_bits)
+            scales.append(scale.numpy().astype("<f2").tobytes())
+            values.append(q.numpy().astype("<i1" if weight_bits <= 8 else "<i2").tobytes())
+        else:
+            bits.append(0)
+            values.append(w.astype("<f2").tobytes())
+    return head[:_MLP_HEAD.size] + compress(records + bytes(bits) + b"".join(scales) + b"".join(values), level)
+
+
 # ----------------------------------------------------------------------------------------------- public API
-def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8,
-                  compression_level: int = 19) -> tuple[bytes, dict[str, int]]:
+def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8, compression_level: int = 19,
+                  feature_coding: str = "predicted", weight_bits: int | None = None) -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
 
     ``contents.mesh`` should be ``roundtrip_mesh(mesh, bits)``, the view the features were fitted on: it is
     stored with Draco at the precision it came from, and any other valid mesh losslessly (raw), so the file
     always decodes to exactly ``contents.mesh``. ``feature_bits`` in 1..16; ``compression_level`` is the
-    zstd level. Raises ``FormatError`` when the contents would make an invalid file and ``MeshError`` when
-    the mesh is invalid.
+    zstd level. ``feature_coding``: "predicted" writes ``FEAC`` (``dfc.io.featcodec``), "plain" the 1.0 ``FEAT``.
+    ``weight_bits``: None writes every MLP tensor as float16 (``MLPW``), 2..16 the weight matrices as integers of
+    that many bits per row (``MLPQ``; ``dfc.field.quantize.quantize_weights``). Raises ``FormatError`` when the
+    contents would make an invalid file and ``MeshError`` when the mesh is invalid.
     """
     F = np.asarray(contents.features)
     if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
@@ -346,14 +450,26 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8,
         raise FormatError(f"cannot write: header domain {header['domain']} differs from the mesh's")
     if not 1 <= feature_bits <= MAX_FEATURE_BITS:
         raise FormatError(f"cannot write: feature_bits must be in 1..{MAX_FEATURE_BITS}, got {feature_bits}")
+    if feature_coding not in FEATURE_CODINGS:
+        raise FormatError(f"cannot write: feature_coding must be one of {FEATURE_CODINGS}, got {feature_coding!r}")
+    if weight_bits is not None and not MIN_WEIGHT_BITS <= weight_bits <= MAX_WEIGHT_BITS:
+        raise FormatError(f"cannot write: weight_bits must be None or in {MIN_WEIGHT_BITS}..{MAX_WEIGHT_BITS}, "
+                          f"got {weight_bits}")
     try:
         text = json.dumps(header, allow_nan=False, ensure_ascii=False).encode("utf-8")
     except (TypeError, ValueError) as exc:
         raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
     mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level)
-    parts = [(b"HEAD", compress(text, compression_level)), (b"MESH", mesh_data), (b"TOPO", topo_data),
-             (b"FEAT", _encode_features(F.astype(np.float32), feature_bits, compression_level)),
-             (b"MLPW", _encode_mlp(contents.mlp, compression_level)), (b"DEND", b"")]
+    if feature_coding == "predicted":
+        from .featcodec import encode_feac
+
+        features = (b"FEAC", encode_feac(F.astype(np.float32), feature_bits, _layout(contents.mesh)))
+    else:
+        features = (b"FEAT", _encode_features(F.astype(np.float32), feature_bits, compression_level))
+    mlp = ((b"MLPW", _encode_mlp(contents.mlp, compression_level)) if weight_bits is None
+           else (b"MLPQ", _encode_mlpq(contents.mlp, weight_bits, compression_level)))
+    parts = [(b"HEAD", compress(text, compression_level)), (b"MESH", mesh_data), (b"TOPO", topo_data), features,
+             mlp, (b"DEND", b"")]
     body = b"".join(_chunk(t, d) for t, d in parts)
     sizes = {t.decode(): 12 + len(d) + (-len(d) % 4) for t, d in parts}
     if _FILE_HEAD.size + len(body) > MAX_FILE_BYTES:
@@ -362,10 +478,10 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8,
     return head + body, sizes
 
 
-def write_dfield(path: str | os.PathLike, contents: DfieldContents, *, feature_bits: int = 8,
-                 compression_level: int = 19) -> dict[str, int]:
-    """Write ``contents`` to ``path`` atomically; return bytes per chunk type (see ``encode_dfield``)."""
-    data, sizes = encode_dfield(contents, feature_bits=feature_bits, compression_level=compression_level)
+def write_dfield(path: str | os.PathLike, contents: DfieldContents, **options) -> dict[str, int]:
+    """Write ``contents`` to ``path`` atomically; return bytes per chunk type (``options`` and sizes: see
+    ``encode_dfield``)."""
+    data, sizes = encode_dfield(contents, **options)
     write_bytes_atomic(path, data)
     return sizes
 
@@ -373,26 +489,34 @@ def write_dfield(path: str | os.PathLike, contents: DfieldContents, *, feature_b
 def decode_dfield(buf: bytes) -> DfieldContents:
     """Parse a whole ``.dfield`` file held in memory; raise ``FormatError`` on any violation of the spec."""
     chunks, _ = _split_chunks(buf)
-    feat = chunks[b"FEAT"]
-    S = _feat_info(feat)["slices"]
+    feat_type, feat = _one(chunks, CRITICAL_ORDER[3])
+    info = _feat_info(feat, feat_type.decode())
     header = _parse_header(bytes(chunks[b"HEAD"]))
-    _check_header(header, S)
+    _check_header(header, info["slices"])
     mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"])
-    features = _decode_features(feat)
-    _check_rows(mesh, features.shape[1])
-    return DfieldContents(header=header, mesh=mesh, features=features, mlp=_decode_mlp(chunks[b"MLPW"]))
+    layout = _layout(mesh)
+    if layout.n_features != info["rows"]:
+        raise FormatError(f"{feat_type.decode()}: {info['rows']} feature rows, the mesh's layout has "
+                          f"{layout.n_features}")
+    if feat_type == b"FEAC":
+        from .featcodec import decode_feac
+
+        features = decode_feac(feat, info, layout)
+    else:
+        features = _decode_features(feat)
+    mlp_type, mlp = _one(chunks, CRITICAL_ORDER[4])
+    weights = _decode_mlp(mlp) if mlp_type == b"MLPW" else _decode_mlpq(mlp)
+    return DfieldContents(header=header, mesh=mesh, features=features, mlp=weights)
 
 
-def _check_rows(mesh: Mesh, n_rows: int) -> None:
-    """The bank must have one row per feature of the mesh's layout (spec §6.3)."""
-    from ..field.layout import build_layout  # late: dfc.field pulls in torch, read_dfield_info needs none
+def _layout(mesh: Mesh):
+    """The feature layout of a decoded mesh (spec §6.3: it fixes the bank's rows); ``FormatError`` when none exists."""
+    from ..field.layout import build_layout
 
     try:
-        expected = build_layout(mesh).n_features
+        return build_layout(mesh)
     except MeshError as exc:
         raise FormatError(f"MESH: no feature layout for the decoded mesh: {exc}") from None
-    if expected != n_rows:
-        raise FormatError(f"FEAT: {n_rows} feature rows, the mesh's layout has {expected}")
 
 
 def read_dfield(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES) -> DfieldContents:
@@ -411,10 +535,16 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
     """
     buf = _read(path, max_bytes)
     chunks, sizes = _split_chunks(buf)
-    feat = _feat_info(chunks[b"FEAT"])
+    feat_type, feat_data = _one(chunks, CRITICAL_ORDER[3])
+    feat = {**_feat_info(feat_data, feat_type.decode()), "coding": "predicted, range-coded" if feat_type == b"FEAC" else "zstd"}
     header = _parse_header(bytes(chunks[b"HEAD"]))
     _check_header(header, feat["slices"])
-    table = _mlp_table(chunks[b"MLPW"])
+    mlp_type, mlp_data = _one(chunks, CRITICAL_ORDER[4])
+    if mlp_type == b"MLPQ":  # its table is compressed with the weights
+        _, table, bits, _ = _mlpq_table(mlp_data)
+        weight_bits = sorted({b for b in bits if b})
+    else:
+        table, weight_bits = _mlp_table(mlp_data), []
     extra = {}
     if with_mesh:
         extra["decoded_mesh"] = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"],
@@ -428,6 +558,6 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
         "mesh": mesh_info(chunks[b"MESH"], chunks[b"TOPO"]),
         "features": feat,
         "mlp": {"tensors": {name: list(shape) for name, shape in table},
-                "parameters": sum(math.prod(s) for _, s in table)},
+                "parameters": sum(math.prod(s) for _, s in table), "weight_bits": weight_bits},
         **extra,
     }

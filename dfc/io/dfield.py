@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from torch.nn.utils import parametrize
 
 from ..errors import FormatError
 from ..field.model import FieldModel
+from ..field.quantize import FakeQuantizeWeights
 from .container import DfieldContents, decode_dfield, read_dfield
 
 __all__ = ["from_contents", "load", "loads", "to_contents"]
@@ -17,10 +19,13 @@ __all__ = ["from_contents", "load", "loads", "to_contents"]
 _ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
 
 
-def to_contents(model: FieldModel, encoder: dict | None = None) -> DfieldContents:
+def to_contents(model: FieldModel, encoder: dict | None = None, *,
+                pixel_size: tuple[float, float] | None = None) -> DfieldContents:
     """The ``.dfield`` contents of a fitted ``FieldModel`` (quantised values when its quantised mode is on).
 
     encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
+    pixel_size : (width, height) in domain units of a pixel of the raster the model was fitted to (header
+        ``pixel_size``: decoders anti-alias at or below that resolution); None for other inputs
     """
     config = model.config()
     header = {
@@ -31,13 +36,25 @@ def to_contents(model: FieldModel, encoder: dict | None = None) -> DfieldContent
         "model": {k: config[k] for k in _ARCH_KEYS},
         "encoder": dict(encoder or {}),
     }
+    if pixel_size is not None:
+        header["pixel_size"] = [float(v) for v in pixel_size]
     with torch.no_grad():
         features = model.field.bank.detach().cpu().numpy().astype(np.float32)
         mlp = {}
         for i, lin in enumerate(model.decoder.linears()):
-            mlp[f"layers.{i}.weight"] = lin.weight.detach().cpu().numpy().astype(np.float32)
-            mlp[f"layers.{i}.bias"] = lin.bias.detach().cpu().numpy().astype(np.float32)
+            mlp[f"layers.{i}.weight"] = _stored(lin, "weight")
+            mlp[f"layers.{i}.bias"] = _stored(lin, "bias")
     return DfieldContents(header=header, mesh=model.field.mesh, features=features, mlp=mlp)
+
+
+def _stored(module, name: str) -> np.ndarray:
+    """The float32 array a writer quantises for ``module.<name>``: the raw tensor under an integer weight
+    quantiser (re-quantising its dequantised values need not reproduce them), else the value it reads as."""
+    if parametrize.is_parametrized(module, name) and isinstance(module.parametrizations[name][0], FakeQuantizeWeights):
+        tensor = module.parametrizations[name].original
+    else:
+        tensor = getattr(module, name)
+    return tensor.detach().cpu().numpy().astype(np.float32)
 
 
 def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldModel:

@@ -36,7 +36,8 @@ class Schedule:
     lr, final_lr : Adam's learning rate, decaying geometrically to ``final_lr`` over the run (None: constant)
     betas : Adam's betas
     qat_steps : the last ``qat_steps`` steps run with ``model.quantization = {"feature_bits": feature_bits}``
-        (quantised features, fp16 weights), which stays set on return so the model evaluates as stored
+        (quantised features, fp16 weights; with ``weight_bits`` also ``"weight_bits": weight_bits``, integer weight
+        matrices), which stays set on return so the model evaluates as stored
     restart_stages : coarse-to-fine stages each restart the learning-rate decay and reseed the sampling
         generator with ``seed + stage``; else the decay and the generator run straight through all stages
     """
@@ -48,6 +49,7 @@ class Schedule:
     qat_steps: int = 0
     feature_bits: int = 8
     restart_stages: bool = False
+    weight_bits: int | None = None
 
     def check(self) -> None:
         """Raise ValueError on settings no run can have."""
@@ -57,6 +59,11 @@ class Schedule:
             raise ValueError(f"qat_steps must be an integer in [0, steps={self.steps}], got {self.qat_steps!r}")
         if not self.lr > 0 or (self.final_lr is not None and not self.final_lr > 0):
             raise ValueError(f"learning rates must be positive, got lr={self.lr}, final_lr={self.final_lr}")
+
+    def quantization(self) -> dict:
+        """The ``model.quantization`` of the quantisation-aware steps."""
+        q = {"feature_bits": self.feature_bits}
+        return q if self.weight_bits is None else {**q, "weight_bits": self.weight_bits}
 
     def decay(self, length: int) -> float:
         """Per-step factor of the learning rate over a run of ``length`` steps."""
@@ -92,7 +99,7 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
         optimizer = torch.optim.Adam(model.parameters(), lr=schedule.lr, betas=schedule.betas)
         for _ in range(n):
             if step == qat_from:
-                model.quantization = {"feature_bits": schedule.feature_bits}
+                model.quantization = schedule.quantization()
             for group in optimizer.param_groups:
                 group["lr"] = schedule.lr * decay ** (step - start)
             value, metrics = loss(model, sampler(step, generator))

@@ -8,6 +8,7 @@ from dfc.errors import FormatError
 from dfc.field.feature_field import FeatureField
 from dfc.field.mlp import MLP, OneBlob
 from dfc.field.model import FieldModel
+from dfc.field.quantize import dequantize_weights, fake_quantize_weights, quantize_weights
 from dfc.geometry.curves import Curves, elevate
 from dfc.geometry.triangulate import triangulate
 
@@ -132,6 +133,36 @@ def test_quantized_mode(mesh):
         model.quantization = {"feature_bits": 0}
     with pytest.raises(ValueError, match="feature_bits"):
         model.quantization = {"bits": 8}
+
+
+def test_integer_weight_mode_freezes_the_weight_matrices(mesh):
+    model = FieldModel(FeatureField(mesh), ["R", "G"], hidden=8)
+    raw = [lin.weight.detach().clone() for lin in model.decoder.linears()]
+    bias = model.decoder.linears()[0].bias.detach().clone()
+    optimizer = torch.optim.Adam(model.parameters(), lr=0.1)
+    model.quantization = {"feature_bits": 8, "weight_bits": 3}
+    assert model.quantization == {"feature_bits": 8, "weight_bits": 3}
+    for lin, w in zip(model.decoder.linears(), raw):
+        q, scale = quantize_weights(w, 3)
+        assert q.abs().max() <= 3 and torch.equal(lin.weight, dequantize_weights(q, scale))
+    model(_xy()).square().sum().backward()
+    optimizer.step()
+    model.quantization = None  # the weight matrices kept their raw values; features and biases trained
+    assert all(torch.equal(lin.weight, w) and lin.weight.requires_grad for lin, w in zip(model.decoder.linears(), raw))
+    assert not torch.equal(model.decoder.linears()[0].bias, bias)
+    with pytest.raises(ValueError, match="weight bits"):
+        model.quantization = {"feature_bits": 8, "weight_bits": 1}
+
+
+def test_weight_quantisation_is_per_row_and_symmetric():
+    W = torch.tensor([[0.5, -1.0, 0.25], [0.0, 0.0, 0.0], [3.0, 1.5, -0.75]])
+    q, scale = quantize_weights(W, 4)
+    assert torch.allclose(scale, torch.tensor([1 / 7, 1.0, 3 / 7]), rtol=1e-3)
+    assert q.abs().max() == 7 and q[0, 1] == -7 and q[2, 0] == 7 and not q[1].any()
+    assert torch.equal(scale, scale.half().float())  # the file stores float16 scales
+    W.requires_grad_(True)
+    fake_quantize_weights(W, 4).sum().backward()
+    assert torch.equal(W.grad, torch.ones_like(W))  # straight through
 
 
 def test_rejects_bad_options(mesh):

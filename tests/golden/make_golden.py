@@ -1,7 +1,10 @@
 """Regenerate the golden files: ``python tests/golden/make_golden.py`` (from the repository root).
 
-valid/tiny.dfield (+ .json with the values a decoder must reproduce) and invalid/<rule>.dfield, each
-breaking the rule its name gives. Regenerate only on a deliberate format change (update spec change log)."""
+valid/tiny.dfield is a file of version 1.0 (FEAT, MLPW) and stays as it was written: it proves that old files keep
+decoding, so this script only reads it (and writes it, from the 1.0 chunk encodings, when it is missing).
+valid/tiny_coded.dfield holds the same contents with the 1.1 chunks (FEAC, MLPQ). Each valid file has a .json with
+the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
+a deliberate format change (update the spec's change log)."""
 
 import json
 import struct
@@ -9,6 +12,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import zstandard
 
 HERE = Path(__file__).parent
 sys.path.insert(0, str(HERE.parents[1]))
@@ -18,15 +22,30 @@ from dfc.io.meshcodec import compress  # noqa: E402
 from tests.io.test_container import join, make_contents, split  # noqa: E402
 
 
+def _write_valid(name: str, blob: bytes) -> None:
+    decoded = decode_dfield(blob)
+    (HERE / "valid" / f"{name}.dfield").write_bytes(blob)
+    (HERE / "valid" / f"{name}.json").write_text(json.dumps({
+        "vertices": decoded.mesh.n_vertices, "features_shape": list(decoded.features.shape),
+        "features_sum": float(np.asarray(decoded.features, np.float64).sum()),
+    }, indent=1) + "\n")
+
+
 def main():
     c = make_contents(n_interior=6, n_side=1, n_disc=2, n_curves=2, seed=0)
-    blob, _ = encode_dfield(c, compression_level=19)
-    (HERE / "valid" / "tiny.dfield").write_bytes(blob)
-    (HERE / "valid" / "tiny.json").write_text(json.dumps({
-        "vertices": c.mesh.n_vertices, "features_shape": list(c.features.shape),
-        "features_sum": float(np.asarray(decode_dfield(blob).features, np.float64).sum()),
-    }, indent=1) + "\n")
+    frozen = HERE / "valid" / "tiny.dfield"
+    if not frozen.exists():
+        _write_valid("tiny", encode_dfield(c, compression_level=19, feature_coding="plain")[0])
+    blob = frozen.read_bytes()
+    coded, _ = encode_dfield(c, compression_level=19, feature_coding="predicted", weight_bits=6)
+    _write_valid("tiny_coded", coded)
     ch = split(blob)
+    cc = split(coded)
+    mlpq = cc[4][1]
+    raw = bytearray(zstandard.ZstdDecompressor().decompress(mlpq[8:]))
+    raw[-7] = 0x80  # the last integer of layers.1.weight (6 bits; three float16 biases follow): -128 is not in ±31
+    out_of_range = [list(x) for x in cc]
+    out_of_range[4][1] = mlpq[:8] + compress(bytes(raw), 19)
     flip = bytearray(blob)
     flip[40] ^= 0x10
     bad_counts = [list(x) for x in ch]
@@ -43,6 +62,8 @@ def main():
         "header_over_1MiB": join(bomb),
         "container_major_2": blob[:8] + b"\x02\x00" + blob[10:],
         "length_past_end": blob[:16] + struct.pack("<I", 0xFFFFFFF0) + blob[20:],
+        "feat_and_feac": join(cc[:4] + [ch[3]] + cc[4:]),
+        "mlpq_integer_out_of_range": join(out_of_range),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)

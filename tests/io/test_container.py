@@ -9,9 +9,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from dfc.errors import FormatError, MeshError
 from dfc.field.layout import build_layout
+from dfc.field.quantize import dequantize_weights, quantize_weights
 from dfc.io.container import (
     DfieldContents,
     decode_dfield,
@@ -46,9 +48,18 @@ def contents():
     return make_contents()
 
 
+CODINGS = {"1.0": {"feature_coding": "plain"}, "1.1": {"feature_coding": "predicted", "weight_bits": 6}}
+"""Chunk encodings: FEAT + MLPW (as a 1.0 writer) or FEAC + MLPQ."""
+
+
+@pytest.fixture(scope="module", params=sorted(CODINGS))
+def coding(request):
+    return CODINGS[request.param]
+
+
 @pytest.fixture(scope="module")
-def blob(contents):
-    return encode_dfield(contents)[0]
+def blob(contents, coding):
+    return encode_dfield(contents, **coding)[0]
 
 
 # ----------------------------------------------------------------------------------------------- helpers
@@ -100,9 +111,9 @@ def with_header(blob, header: bytes | dict, level=3) -> bytes:
 
 
 # ----------------------------------------------------------------------------------------------- round trip
-def test_round_trip(tmp_path, contents):
+def test_round_trip(tmp_path, contents, coding):
     path = tmp_path / "f.dfield"
-    sizes = write_dfield(path, contents)
+    sizes = write_dfield(path, contents, **coding)
     assert sum(sizes.values()) + 16 == path.stat().st_size
     out = read_dfield(path)
     _, scale, _ = __import__("dfc.field.quantize", fromlist=["x"]).quantize_features(contents.features, 8)
@@ -110,26 +121,35 @@ def test_round_trip(tmp_path, contents):
     assert np.all(np.abs(out.features - contents.features) <= scale / 2 * (1 + 1e-5) + 1e-7)
     assert out.mlp.keys() == contents.mlp.keys()
     for k, w in contents.mlp.items():
-        assert out.mlp[k].dtype == np.float32 and np.array_equal(out.mlp[k], w.astype(np.float16).astype(np.float32))
+        if w.ndim == 2 and "weight_bits" in coding:
+            expected = dequantize_weights(*quantize_weights(torch.from_numpy(w), coding["weight_bits"])).numpy()
+        else:
+            expected = w.astype(np.float16).astype(np.float32)
+        assert out.mlp[k].dtype == np.float32 and np.array_equal(out.mlp[k], expected)
     for f in ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points",
               "curve_degree", "disc_edge_piece", "curve_piece"):
         assert np.array_equal(getattr(out.mesh, f), getattr(contents.mesh, f)), f
     assert out.mesh.domain == contents.mesh.domain
     assert {k: v for k, v in out.header.items() if k not in ("format", "content_version")} == contents.header
-    assert out.header["content_version"] == [1, 0]
+    assert out.header["content_version"] == [1, 1]
+    assert sorted(sizes) == sorted(["HEAD", "MESH", "TOPO", "DEND"] + (["FEAT", "MLPW"] if "weight_bits" not in coding
+                                                                     else ["FEAC", "MLPQ"]))
 
 
 @pytest.mark.parametrize("bits", [1, 4, 12, 16])
-def test_feature_bits(bits, contents):
-    out = decode_dfield(encode_dfield(contents, feature_bits=bits)[0])
+@pytest.mark.parametrize("feature_coding", ["plain", "predicted"])
+def test_feature_bits(bits, feature_coding, contents):
+    out = decode_dfield(encode_dfield(contents, feature_bits=bits, feature_coding=feature_coding)[0])
     span = contents.features.max(axis=(0, 1)) - contents.features.min(axis=(0, 1))
     assert np.all(np.abs(out.features - contents.features) <= span / (2**bits - 1) / 2 * (1 + 1e-4) + 1e-6)
 
 
 def test_time_axis():
     c = make_contents(S=3)
-    out = decode_dfield(encode_dfield(c)[0])
-    assert out.features.shape[0] == 3 and out.header["times"] == [0.0, 0.5, 1.0]
+    for feature_coding in ("plain", "predicted"):
+        out = decode_dfield(encode_dfield(c, feature_coding=feature_coding)[0])
+        assert out.features.shape[0] == 3 and out.header["times"] == [0.0, 0.5, 1.0]
+        assert np.array_equal(out.features, decode_dfield(encode_dfield(c, feature_coding="plain")[0]).features)
     c.header["times"] = [0.0, 0.0, 1.0]
     with pytest.raises(FormatError, match="strictly increasing"):
         encode_dfield(c)
@@ -140,12 +160,13 @@ def test_time_axis():
 
 def test_info_reads_counts_without_decoding(tmp_path, contents):
     path = tmp_path / "f.dfield"
-    sizes = write_dfield(path, contents, feature_bits=10)
+    sizes = write_dfield(path, contents, feature_bits=10, weight_bits=7)
     info = read_dfield_info(path)
-    assert info["chunks"] == sizes and info["container_version"] == [1, 0] and info["content_version"] == [1, 0]
+    assert info["chunks"] == sizes and info["container_version"] == [1, 1] and info["content_version"] == [1, 1]
     assert info["mesh"]["vertices"] == contents.mesh.n_vertices and info["mesh"]["bits"] == 16
-    assert info["features"] == {"slices": 1, "rows": contents.features.shape[1], "width": 5, "bits": 10}
-    assert info["mlp"]["parameters"] == sum(w.size for w in contents.mlp.values())
+    assert info["features"] == {"slices": 1, "rows": contents.features.shape[1], "width": 5, "bits": 10,
+                                "coding": "predicted, range-coded"}
+    assert info["mlp"]["parameters"] == sum(w.size for w in contents.mlp.values()) and info["mlp"]["weight_bits"] == [7]
     assert info["header"]["channels"] == ["r", "g", "b"]
 
 
@@ -179,7 +200,9 @@ def test_writer_checks_its_inputs(contents):
 def test_wrong_feature_row_count_is_refused(contents):
     c = DfieldContents(contents.header, contents.mesh, contents.features[:, :-1], contents.mlp)
     with pytest.raises(FormatError, match="feature rows"):
-        decode_dfield(encode_dfield(c)[0])
+        decode_dfield(encode_dfield(c, feature_coding="plain")[0])
+    with pytest.raises(FormatError, match="feature rows"):  # the predicted coding needs the right layout to write
+        encode_dfield(c)
 
 
 def test_max_bytes(tmp_path, contents):
@@ -235,7 +258,8 @@ def test_huge_counts_are_refused_without_allocating(blob, value):
     """Every u32 count in every chunk's fixed fields, set huge (CRC fixed): refused, small peak memory."""
     chunks = split(blob)
     tracemalloc.start()
-    for k, offsets in ((1, [4, 8]), (2, [0, 4, 8]), (3, [0, 4]), (4, [0, 4, 68, 72])):
+    mlp_counts = [0, 4, 68, 72] if chunks[4][0] == b"MLPW" else [0, 4]  # MLPQ compresses its tensor table
+    for k, offsets in ((1, [4, 8]), (2, [0, 4, 8]), (3, [0, 4]), (4, mlp_counts)):
         for off in offsets:
             ch = [list(c) for c in chunks]
             d = bytearray(ch[k][1])
