@@ -42,19 +42,30 @@ Callback = Callable[..., None]
 class EncodeSettings:
     """Every knob of an encode; stored in the file's header (``encoder``) so a decode never depends on defaults.
 
-    Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``. Fit
-    (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``qat_steps``, ``loss``, ``seed``, ``device``. Storage:
-    ``feature_bits``, ``mesh_bits``.
+    Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``; then ``refine``
+    rounds of error-driven refinement (``_refine``: each splits the triangles holding ``dfc.rate.REFINE_SHARE`` of
+    the fit's squared error, at most ``refine_fraction`` of the triangle count, and refits for ``refine_steps``,
+    default half of ``steps``, from the previous fit). Fit
+    (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
+    ``device``. Storage (spec/dfield.md): ``feature_bits``, ``feature_coding`` ("predicted": ``FEAC``, "plain": the
+    1.0 ``FEAT``), ``weight_bits`` (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
     """
 
     max_triangles: int | None = None
     max_area: float | None = None
     edge_length: float | None = None
     target_bytes: int | None = None
+    refine: int = 0
+    refine_steps: int | None = None
+    refine_fraction: float = 0.25
     steps: int = DEFAULT_STEPS
     batch_size: int = 1 << 14
     dim: int = 5
+    hidden: int = 64
+    layers: int = 2
     feature_bits: int = 8
+    feature_coding: str = "predicted"
+    weight_bits: int | None = 8
     mesh_bits: int = 20
     qat_steps: int | None = None
     loss: str = "auto"
@@ -90,6 +101,12 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
     )
 
 
+def storage(settings) -> dict:
+    """``dfc.io.container.encode_dfield``'s keyword arguments for ``settings`` (an ``EncodeSettings``)."""
+    return {"feature_bits": settings.feature_bits, "feature_coding": settings.feature_coding,
+            "weight_bits": settings.weight_bits}
+
+
 def encoder_info(settings, source: str, extra: dict) -> dict:
     """The header's ``encoder`` record: software, curves source, every setting (a dataclass) and ``extra``."""
     return {"software": f"dfc {__version__}", "source": source, **asdict(settings), **extra}
@@ -114,7 +131,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     """
     from .io.image import check_pixels
     from .io.samples import default_channels
-    from .render import render
+    from .render import default_edge_spp, render
     from .train.fit import fit_image
 
     settings = settings or EncodeSettings()
@@ -123,10 +140,22 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
     peak = signal_range(pixels)
-    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, data_range=peak)
+    from .geometry.pixels import edge_pixels
+    from .render import window_points
+
+    centres = window_points(curves.domain, w, h)
+
+    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not)
+        err = _error(m, centres, pixels.reshape(-1, c), settings)
+        err[edge_pixels(m.field.mesh, h, w).ravel()] = 0.0
+        return centres, err
+
+    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, residual=residual,
+                                   min_area=0.25, data_range=peak)
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
                                                   "hdr": float(pixels.max()) > 1.0})
-    return _finish(model, settings, info, seconds, w * h, lambda m: (pixels, render(m, w, h)), peak)
+    return _finish(model, settings, info, seconds, w * h,
+                   lambda m: (pixels, render(m, w, h, edge_spp=default_edge_spp(m, w, h))), peak, pixel_size=(1.0, 1.0))
 
 
 def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = None, *,
@@ -202,7 +231,7 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     """
     from .io.frames import check_frames
     from .io.samples import default_channels
-    from .render import render
+    from .render import default_edge_spp, render
     from .train.fit import fit_frames
 
     sequence = check_frames(sequence)
@@ -218,9 +247,10 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
                                                   "hdr": float(frames.max()) > 1.0})
 
     def truth(m):
-        return frames, np.stack([render(m, w, h, t=float(s)) for s in sequence.times])
+        edge_spp = default_edge_spp(m, w, h)
+        return frames, np.stack([render(m, w, h, t=float(s), edge_spp=edge_spp) for s in sequence.times])
 
-    return _finish(model, settings, info, seconds, t * w * h, truth, peak)
+    return _finish(model, settings, info, seconds, t * w * h, truth, peak, pixel_size=(1.0, 1.0))
 
 
 # ----------------------------------------------------------------------------------------------- shared steps
@@ -233,29 +263,66 @@ def _physical(settings: EncodeSettings) -> tuple[EncodeSettings, dict]:
 
 
 def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, channels: list[str], callback,
-                  mesh=None, **fit_kw):
+                  mesh=None, residual=None, min_area: float = 0.0, **fit_kw):
     """Build the decoder-view mesh (unless ``mesh`` is that mesh already), then fit ``fit_fn`` (``fit_image``,
-    ``fit_samples`` or ``fit_frames``) to ``signal`` on it; ``fit_kw`` go to ``fit_fn``. Returns (model, seconds
-    per stage)."""
+    ``fit_samples`` or ``fit_frames``) to ``signal`` on it, and refine ``settings.refine`` times (``_refine``, with
+    ``residual(model) -> (xy (M, 2), squared error (M,))`` and triangles of at least ``min_area`` split); ``fit_kw``
+    go to ``fit_fn``. Returns (model, seconds per stage)."""
     clock = time.perf_counter()
-    mesh = mesh if mesh is not None else sized_mesh(curves, settings, channels)
+    mesh_settings, mesh = (settings, mesh) if mesh is not None else sized_mesh(curves, settings, channels)
     seconds = {"mesh_s": time.perf_counter() - clock}
     clock = time.perf_counter()
-    model = fit_fn(signal, mesh, steps=settings.steps, batch_size=settings.batch_size, dim=settings.dim,
-                   seed=settings.seed, loss=settings.loss, device=settings.device, qat_steps=settings.qat_steps,
-                   feature_bits=settings.feature_bits, callback=callback, channels=channels, **fit_kw)
+    fit_kw = {"batch_size": settings.batch_size, "dim": settings.dim, "seed": settings.seed, "loss": settings.loss,
+              "device": settings.device, "feature_bits": settings.feature_bits, "weight_bits": settings.weight_bits,
+              "callback": callback, "channels": channels, "hidden": settings.hidden, "layers": settings.layers,
+              **fit_kw}
+    model = fit_fn(signal, mesh, steps=settings.steps, qat_steps=settings.qat_steps, **fit_kw)
     seconds["fit_s"] = time.perf_counter() - clock
+    if settings.refine and residual is not None:
+        clock = time.perf_counter()
+        model = _refine(model, fit_fn, signal, curves, settings, mesh_settings, residual, min_area, fit_kw)
+        seconds["refine_s"] = time.perf_counter() - clock
     return model, seconds
 
 
+def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mesh_settings, residual,
+            min_area: float, fit_kw):
+    """``settings.refine`` rounds of error-driven refinement of a fitted ``model``: split the triangles where
+    ``residual`` is largest (``dfc.rate.refinement_points``; curved triangles stay), rebuild the mesh (with
+    ``mesh_settings``, which built the first one, plus the new vertices) and refit from the current fit (``init``).
+    Stops early when no triangle is left to split."""
+    from .rate import build_mesh, refinement_points
+
+    extra = np.zeros((0, 2))
+    steps = settings.refine_steps or max(1, settings.steps // 2)
+    for _ in range(settings.refine):
+        mesh = model.field.mesh
+        xy, err = residual(model)
+        most = max(1, round(settings.refine_fraction * mesh.n_triangles))
+        points = refinement_points(mesh, xy, err, most=most, min_area=min_area)
+        if not len(points):
+            break
+        extra = np.concatenate([extra, points])
+        mesh = build_mesh(curves, mesh_settings, extra_points=extra)
+        model = fit_fn(signal, mesh, steps=steps, qat_steps=None, init=model, **fit_kw)
+    return model
+
+
+def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) -> np.ndarray:
+    """(M,) float64 squared error of ``model`` at points xy (M, 2) against values (M, C), summed over channels."""
+    pred = values_at(model, xy, device=settings.device, block=QUERY_BLOCK)
+    return ((pred - values) ** 2).sum(axis=1)
+
+
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
-            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], data_range: float):
-    """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth``."""
+            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], data_range: float, pixel_size=None):
+    """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth``
+    (``pixel_size``: of a raster input, for the header)."""
     from .io.container import encode_dfield
     from .metrics import psnr
 
     clock = time.perf_counter()
-    blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits)
+    blob, sizes = encode_dfield(to_contents(model, info, pixel_size=pixel_size), **storage(settings))
     decoded = loads(blob, device=settings.device)
     seconds["write_s"] = time.perf_counter() - clock
     clock = time.perf_counter()

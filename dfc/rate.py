@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import torch
 
 from .errors import InputError, TriangleBudgetError
@@ -17,33 +18,62 @@ from .geometry.curves import Curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
-__all__ = ["NOISY_SAMPLES_PER_TRIANGLE", "TARGET_BYTES_PROBES", "build_mesh", "mesh_for_bytes", "sample_mesh_size",
-           "sized_mesh"]
+__all__ = ["NOISY_SAMPLES_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "mesh_for_bytes",
+           "refinement_points", "sample_mesh_size", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
+REFINE_SHARE = 0.5
+"""A refinement round splits the triangles holding this share of the fit's squared error (at most a set number)."""
 NOISY_SAMPLES_PER_TRIANGLE = 1000
 """Sample sets without a mesh-size option get about one triangle per this many samples (at most
 ``DEFAULT_TRIANGLES``, at least what the curves force): a finer mesh fits the noise of Monte Carlo samples
 (on the pepper at 500² and 11 spp, 2.75M samples on 1,746 triangles denoise 30×)."""
 
 
-def build_mesh(curves: Curves, settings, *, stats: dict | None = None) -> Mesh:
-    """Triangulate ``curves`` with the settings' size knobs and return the mesh as the decoder will see it
-    (Draco-quantised with ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on."""
+def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | None = None) -> Mesh:
+    """Triangulate ``curves`` with the settings' size knobs (and the refinement vertices ``extra_points`` (M, 2),
+    see ``dfc.geometry.triangulate``) and return the mesh as the decoder will see it (Draco-quantised with
+    ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on."""
     from .io.meshcodec import roundtrip_mesh
 
     mesh = triangulate(curves, max_area=settings.max_area, edge_length=settings.edge_length,
-                       max_triangles=settings.max_triangles, stats=stats)
+                       max_triangles=settings.max_triangles, extra_points=extra_points, stats=stats)
     return roundtrip_mesh(mesh, settings.mesh_bits)
 
 
-def sized_mesh(curves: Curves, settings, channels: list[str]) -> Mesh:
-    """The decoder-view mesh, sized to ``settings.target_bytes`` when given (``mesh_for_bytes``), else by the
-    explicit knobs."""
+def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: float = REFINE_SHARE,
+                      most: int, min_area: float = 0.0) -> np.ndarray:
+    """Centroids (P, 2) float64 of the triangles to split next: ``error`` (M,) ≥ 0 at points ``xy`` (M, 2) is summed
+    per triangle; the triangles with the largest sums, until they hold ``share`` of the total, at most ``most``,
+    leaving out curved triangles (the curves stay as they are) and triangles below ``min_area``."""
+    from .field.layout import build_layout
+    from .field.locate import PointLocator
+    from .geometry.plane import triangle_areas
+
+    locator = PointLocator(mesh.vertices, mesh.triangles, mesh.domain)
+    with torch.no_grad():
+        tri, _ = locator(locator.clamp(torch.from_numpy(np.asarray(xy, np.float64))))
+    total = np.bincount(tri.cpu().numpy(), weights=np.asarray(error, np.float64), minlength=mesh.n_triangles)
+    total[build_layout(mesh).triangle_curve >= 0] = 0.0
+    total[triangle_areas(mesh.vertices[mesh.triangles]) < min_area] = 0.0
+    order = np.argsort(-total, kind="stable")
+    if most < 1 or total.sum() <= 0:
+        return np.zeros((0, 2))
+    reach = np.searchsorted(np.cumsum(total[order]), share * total.sum()) + 1
+    chosen = order[:min(most, reach)]
+    chosen = chosen[total[chosen] > 0]
+    return mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
+
+
+def sized_mesh(curves: Curves, settings, channels: list[str]) -> tuple[object, Mesh]:
+    """(mesh settings, mesh): the decoder-view mesh, sized to ``settings.target_bytes`` when given
+    (``mesh_for_bytes``), else by the explicit knobs; and the settings that rebuild it with ``build_mesh`` (the
+    byte target resolved into the triangle cap it found)."""
     if settings.target_bytes is None:
-        return build_mesh(curves, settings)
-    return mesh_for_bytes(curves, settings, channels)
+        return settings, build_mesh(curves, settings)
+    mesh, cap = _mesh_and_cap(curves, settings, channels)
+    return replace(settings, target_bytes=None, max_triangles=cap, max_area=None, edge_length=None), mesh
 
 
 def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int) -> tuple[int, Mesh]:
@@ -55,10 +85,13 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int)
     from .io.dfield import to_contents
 
     mesh = build_mesh(curves, replace(settings, max_triangles=n_triangles, max_area=None, edge_length=None))
-    model = FieldModel(FeatureField(mesh, dim=settings.dim, seed=settings.seed), channels)
+    from .codec import storage
+
+    model = FieldModel(FeatureField(mesh, dim=settings.dim, seed=settings.seed), channels, hidden=settings.hidden,
+                       layers=settings.layers)
     with torch.no_grad():
         model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
-    blob, _ = encode_dfield(to_contents(model), feature_bits=settings.feature_bits)
+    blob, _ = encode_dfield(to_contents(model), **storage(settings))
     return len(blob), mesh
 
 
@@ -66,6 +99,11 @@ def mesh_for_bytes(curves: Curves, settings, channels: list[str]) -> Mesh:
     """The largest decoder-view mesh whose file stays within ``settings.target_bytes``, by bisection on the triangle
     cap (at most ``TARGET_BYTES_PROBES`` triangulations). ``InputError`` when even the mesh the curves force is too
     large."""
+    return _mesh_and_cap(curves, settings, channels)[0]
+
+
+def _mesh_and_cap(curves: Curves, settings, channels: list[str]) -> tuple[Mesh, int]:
+    """``mesh_for_bytes``'s mesh and the triangle cap it was built with."""
     # ``fits`` is the largest cap known to fit the target, ``over`` the smallest known not to (too many bytes, or
     # fewer triangles than the curves force).
     fits, over, best, size = 0, None, None, None
@@ -76,7 +114,7 @@ def mesh_for_bytes(curves: Curves, settings, channels: list[str]) -> Mesh:
         except TriangleBudgetError:  # below the triangles the curves force: only larger caps can work
             fits, size = max(fits, n), None
         if size is not None and size <= settings.target_bytes:
-            fits, best = n, mesh
+            fits, best = n, (mesh, n)
         elif size is not None:
             over = n
         if over is not None and over - fits <= max(8, fits // 50):

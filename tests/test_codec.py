@@ -13,7 +13,7 @@ from dfc.field.model import FieldModel
 from dfc.io.container import decode_dfield, encode_dfield
 from dfc.io.dfield import from_contents, to_contents
 from dfc.rate import build_mesh
-from dfc.render import render
+from dfc.render import EDGE_SPP, default_edge_spp, render
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,8 @@ def small_encode(scene):
 def test_encode_reports_what_the_file_decodes_to(small_encode):
     image, blob, report = small_encode
     model = loads(blob)
-    err = np.mean((render(model, 64, 64).astype(np.float64) - image) ** 2)
+    assert model.header["pixel_size"] == [1.0, 1.0] and default_edge_spp(model, 64, 64) == EDGE_SPP
+    err = np.mean((render(model, 64, 64, edge_spp=EDGE_SPP).astype(np.float64) - image) ** 2)
     assert report.psnr == pytest.approx(10 * np.log10(1.0 / err), abs=1e-6)
     assert report.total_bytes == len(blob)
     assert sum(report.chunk_bytes.values()) + 16 == len(blob)
@@ -99,6 +100,24 @@ def test_encode_is_deterministic(scene, small_encode):
     curves = check_domain(scene.curves, 64, 64, fit=True)
     again, _ = encode_image(image, curves, EncodeSettings(steps=60, batch_size=2048, max_triangles=300))
     assert again == blob
+
+
+def test_refinement_splits_where_the_error_is_and_reports_the_refined_file(scene, small_encode):
+    image, blob, report = small_encode
+    curves = check_domain(scene.curves, 64, 64, fit=True)
+    settings = EncodeSettings(steps=60, batch_size=2048, max_triangles=300, refine=1, refine_steps=60)
+    refined_blob, refined = encode_image(image, curves, settings)
+    model, coarse = loads(refined_blob), loads(blob)
+    assert coarse.field.mesh.n_triangles < refined.n_triangles == model.field.mesh.n_triangles
+    assert refined.n_triangles <= coarse.field.mesh.n_triangles * (1 + 3 * settings.refine_fraction)
+    err = np.mean((render(model, 64, 64, edge_spp=EDGE_SPP).astype(np.float64) - image) ** 2)
+    assert refined.psnr == pytest.approx(10 * np.log10(1.0 / err), abs=1e-6)
+    assert refined.psnr > report.psnr  # 60 more steps on a finer mesh, started from the first fit
+    assert "refine_s" in refined.seconds
+    # the curves stay as they were: no refinement vertex on a discontinuity or in a curved triangle
+    assert len(model.field.mesh.disc_edges) == len(coarse.field.mesh.disc_edges)
+    np.testing.assert_array_equal(np.sort(model.field.mesh.curve_control_points.reshape(-1)),
+                                  np.sort(coarse.field.mesh.curve_control_points.reshape(-1)))
 
 
 @pytest.mark.parametrize("target", [12_000, 30_000])

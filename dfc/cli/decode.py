@@ -20,6 +20,9 @@ from .output import check_time, render_to_file
 @click.option("--window", type=WINDOW, help="Render only x0,y0,x1,y1 (domain units) [default: the whole domain].")
 @click.option("--spp", type=click.IntRange(1, 1024), default=1, show_default=True,
               help="Samples per output pixel (1: the pixel centre; more: averaged low-discrepancy points).")
+@click.option("--edge-spp", type=click.IntRange(0, 4096), default=None,
+              help="Samples averaged in the pixels a discontinuity crosses (anti-aliasing; 0: off)  [default: 64 "
+                   "at or below the resolution of the image the file was fitted to, else 0].")
 @click.option("--float", "full_float", is_flag=True, help="Write 32-bit float EXR channels (default: half).")
 @click.option("--time", "t", type=float, help="Time to render, for a time-varying file [default: its first time].")
 @click.option("--frames", "n_frames", type=click.IntRange(min=1),
@@ -27,11 +30,15 @@ from .output import check_time, render_to_file
                    "integer field (e.g. out_%04d.exr), numbered from 0.")
 @click.option("--device", default="cpu", show_default=True, help="torch device for rendering.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
-def command(input_path, output, size, window, spp, full_float, t, n_frames, device, quiet):
+def command(input_path, output, size, window, spp, edge_spp, full_float, t, n_frames, device, quiet):
     """Render IN to OUTPUT. Pixels sample the field at their centres (spec/conventions.md), so any size and any
-    window of the domain can be rendered; large outputs are written in row blocks with bounded memory."""
+    window of the domain can be rendered; large outputs are written in row blocks with bounded memory.
+
+    At or below the resolution of the image the file was fitted to, pixels that a discontinuity crosses are
+    averaged over --edge-spp points, as the input's pixels were area averages (anti-aliasing); zoomed renders
+    keep the edges sharp."""
     from ..codec import load
-    from ..render import check_window
+    from ..render import check_window, default_edge_spp
 
     if n_frames is not None and t is not None:
         raise click.UsageError("give either --time or --frames")
@@ -45,13 +52,16 @@ def command(input_path, output, size, window, spp, full_float, t, n_frames, devi
     except ValueError as e:
         raise click.BadParameter(str(e), param_hint="'--window'") from None
     size = size or default_size(window, domain)
+    if edge_spp is None:
+        edge_spp = default_edge_spp(model, *size, window)
+    options = {"spp": spp, "edge_spp": edge_spp, "half": not full_float, "quiet": quiet}
     if pattern is None:
-        render_to_file(model, output, size, window, spp=spp, half=not full_float, t=check_time(model, t), quiet=quiet)
+        render_to_file(model, output, size, window, t=check_time(model, t), **options)
         click.echo(f"wrote {output}: {size[0]}x{size[1]} of window {tuple(round(v, 6) for v in window)}")
         return
     times = frame_times(model, n_frames)
     for k, tk in enumerate(times):
-        render_to_file(model, pattern % k, size, window, spp=spp, half=not full_float, t=tk, quiet=quiet)
+        render_to_file(model, pattern % k, size, window, t=tk, **options)
     click.echo(f"wrote {len(times)} frames {pattern % 0} .. {pattern % (len(times) - 1)}: {size[0]}x{size[1]}, "
                f"t = {times[0]:g} .. {times[-1]:g}")
 

@@ -59,6 +59,13 @@ def _times(ctx, param, value):
               help="Bits per stored feature value.")
 @click.option("--mesh-bits", type=click.IntRange(1, 23), default=20, show_default=True,
               help="Draco quantisation bits of the vertex positions.")
+@click.option("--weight-bits", type=click.IntRange(0, 16), default=8, show_default=True,
+              help="Bits per integer MLP weight (per-row scales, learnt in the quantisation-aware steps); 0: float16.")
+@click.option("--feature-coding", type=click.Choice(["predicted", "plain"]), default="predicted", show_default=True,
+              help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
+@click.option("--refine", type=click.IntRange(0, 16), default=0, show_default=True,
+              help="Image input: rounds of error-driven refinement after the fit (split the triangles with the "
+                   "largest error, refit for half the steps); each round adds triangles, so the file grows.")
 @click.option("--loss", type=click.Choice(["auto", "mse", "relmse"]), default="auto", show_default=True,
               help="auto: relative MSE for HDR inputs (values > 1), else MSE.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
@@ -73,8 +80,8 @@ def _times(ctx, param, value):
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the summary as JSON here.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
-            dim, feature_bits, mesh_bits, loss, seed, device, channels, fit_curves_to_image, times, fields,
-            fem_sampling, json_path, quiet):
+            dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, device, channels,
+            fit_curves_to_image, times, fields, fem_sampling, json_path, quiet):
     """Encode INPUT with the discontinuity CURVES into OUTPUT. INPUT is an EXR/PNG/JPEG image; a .npz sample set
     or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
     triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling).
@@ -82,7 +89,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     The mesh is built first (size knobs: --max-triangles, --max-area, --edge-length or --target-bytes; default
     about 2,000 triangles plus those the curves force), then a feature field is fitted on it and written. The
     summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written file, decoded again,
-    against the input at its pixel centres (sample positions, FEM nodes; every frame of a sequence).
+    against the input (images: rendered as `dfc decode` does at the input's size, averaging the pixels a curve
+    crosses; sample positions, FEM nodes; every frame of a sequence).
     """
     from ..codec import EncodeSettings, encode_fem, encode_frames, encode_image, encode_samples
     from ..geometry.curves import read_curves
@@ -102,12 +110,16 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         raise click.UsageError("--fields and --fem-sampling apply to FEM input")
     settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                               target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size, dim=dim,
-                              feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
+                              feature_bits=feature_bits, mesh_bits=mesh_bits, weight_bits=weight_bits or None,
+                              feature_coding=feature_coding, refine=refine, loss=loss, seed=seed,
                               device=check_device(device))
     curves = read_curves(curves_path)
     signal = _read_input(kind, input_paths, times, channels.split(",") if channels else None,
                          fields.split(",") if fields else None)
-    with progress_bar(settings.steps, "fit", quiet) as bar:
+    if refine and kind != "image":
+        raise click.UsageError("--refine applies to image input")
+    total_steps = settings.steps + refine * (settings.refine_steps or max(1, settings.steps // 2))
+    with progress_bar(total_steps, "fit", quiet) as bar:
         def callback(step, loss_value, psnr):
             bar.update(1)
             if step % 25 == 0:

@@ -7,9 +7,11 @@ import click
 from .options import progress_bar
 
 
-def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: int, half: bool, t, quiet: bool) -> None:
+def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: int, half: bool, t, quiet: bool,
+                   edge_spp: int = 0) -> None:
     """Stream a ``size`` render of ``window`` into ``output`` (.exr: half or float; .png: 8-bit sRGB, tone-mapped
-    for HDR files). Memory stays bounded by the render block; the file appears only when complete."""
+    for HDR files; ``edge_spp``: see ``dfc.render.row_blocks``). Memory stays bounded by the render block; the file
+    appears only when complete."""
     from ..io.image import ExrBlockWriter, PngBlockWriter
     from ..render import row_blocks
 
@@ -23,7 +25,7 @@ def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: in
         writer = ExrBlockWriter(output, width, height, channels, half=half)
     with writer, progress_bar(height, "render", quiet) as bar:
         bar.unit = "row"
-        for y0, block in row_blocks(model, width, height, window, spp=spp, t=t):
+        for y0, block in row_blocks(model, width, height, window, spp=spp, t=t, edge_spp=edge_spp):
             writer.write_rows(y0, block)
             bar.update(len(block))
 

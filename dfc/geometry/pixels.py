@@ -10,14 +10,15 @@ EDGE_SAMPLE_SPACING = 0.25
 """``edge_pixels`` samples each discontinuity at this spacing, in pixels."""
 
 
-def edge_pixels(mesh, height: int, width: int) -> np.ndarray:
-    """(H, W) bool: pixels of a ``width × height`` raster over ``mesh.domain`` crossed by a discontinuity.
+def edge_pixels(mesh, height: int, width: int, window=None) -> np.ndarray:
+    """(H, W) bool: pixels of a ``width × height`` raster of ``window`` (x0, y0, x1, y1; default ``mesh.domain``)
+    crossed by a discontinuity.
 
     Their values blend both sides (a box-filtered image), which no side of a sharp field can match.
     Straight discontinuous edges and curved pieces are sampled every ``EDGE_SAMPLE_SPACING`` pixels,
     so a pixel whose corner a curve clips by less than that may be missed (its blend is slight).
     """
-    x0, y0, x1, y1 = mesh.domain
+    x0, y0, x1, y1 = mesh.domain if window is None else window
     v = mesh.vertices
     a, b = v[mesh.disc_edges[:, 0]], v[mesh.disc_edges[:, 1]]
     lines = np.stack([a, a + (b - a) / 3.0, a + 2.0 * (b - a) / 3.0, b], axis=1)

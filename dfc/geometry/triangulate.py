@@ -55,6 +55,7 @@ def triangulate(
     grading: float | None = None,
     max_triangles: int | None = None,
     min_angle: float = 20.0,
+    extra_points: np.ndarray | None = None,
     stats: dict | None = None,
 ) -> Mesh:
     """Curved constrained triangulation of ``curves.domain`` with every piece of ``curves`` built in.
@@ -74,6 +75,10 @@ def triangulate(
         Cap on the triangle count: the density is lowered until it fits. Alone, it sets the density.
     min_angle : float
         Smallest-angle target in degrees for the Steiner points (0 to 34; 0 switches it off).
+    extra_points : (M, 2) float64, optional
+        Further vertices (error-driven refinement), added to the Steiner points the size knobs give (which
+        ``max_triangles`` alone caps) except where one would lie in a curved piece's tangent triangle, outside the
+        domain's interior, or within ``tol.snap_rel`` of the diagonal of an input vertex or constraint.
     stats : dict, optional
         Filled with timings in seconds (``clean_s``, ``conflict_s``, ``density_s``, ``cdt_s``) and counts
         (``pieces_in``, ``pieces_clean``, ``pieces_final``, ``apexes``, ``steiner``, ``vertices``, ``triangles``).
@@ -126,6 +131,13 @@ def triangulate(
     build = partial(_final_mesh, points, line_edges=line_edges, line_piece=line_piece, chords=chords, cp=cp,
                     degree=degree, curve_piece=curve_piece, apex=apex, domain=domain, eps=eps)
     mesh, n_apex, steiner = _within_budget(build, steiner, max_triangles)
+    if extra_points is not None and len(extra_points):
+        extra = _free_points(np.asarray(extra_points, np.float64).reshape(-1, 2), points, steiner, lines,
+                             cp, tangent, domain, eps)
+        if len(extra):
+            steiner = np.concatenate([steiner, extra])
+            mesh, n_apex = build(steiner)
+        stats["extra"] = len(extra)
     stats["cdt_s"] = time.perf_counter() - clock
     stats.update(apexes=n_apex, steiner=len(steiner), vertices=mesh.n_vertices, triangles=mesh.n_triangles)
     return mesh
@@ -173,6 +185,39 @@ def _within_budget(build, steiner: np.ndarray, max_triangles: int | None):
             mesh.n_triangles,
         )
     return mesh, n_apex, steiner
+
+
+def _free_points(extra, points, steiner, lines, cp, tangent, domain, eps) -> np.ndarray:
+    """The points of ``extra`` (M, 2) strictly inside the domain, outside every tangent triangle (C, 3, 2) and
+    farther than ``tol.snap_rel`` of the diagonal from the vertices (``points``, ``steiner``), line pieces (L, 2, 2),
+    curved pieces' chords and from each other (the first of two close points is kept)."""
+    x0, y0, x1, y1 = domain
+    gap = tol.snap_rel * float(np.hypot(x1 - x0, y1 - y0))
+    keep = (extra[:, 0] > x0 + gap) & (extra[:, 0] < x1 - gap) & (extra[:, 1] > y0 + gap) & (extra[:, 1] < y1 - gap)
+    if len(tangent):
+        lo, hi = tangent.min(axis=1), tangent.max(axis=1)
+        i, k = _box_pairs(lo, hi, extra, extra)
+        keep[k[(_signed_edges(tangent[i], extra[k]) >= -eps).all(axis=1)]] = False
+    extra = extra[keep]
+    near = cKDTree(np.concatenate([points, steiner])).query(extra)[0] if len(extra) else np.zeros(0)
+    extra = extra[near > gap]
+    segments = np.concatenate([lines.reshape(-1, 2, 2), cp[:, [0, 3]]])
+    if len(segments) and len(extra):
+        a, b = segments[:, 0], segments[:, 1]
+        lo, hi = np.minimum(a, b) - gap, np.maximum(a, b) + gap
+        i, k = _box_pairs(lo, hi, extra, extra)
+        d = b[i] - a[i]
+        t = np.clip(np.einsum("nd,nd->n", extra[k] - a[i], d) / np.maximum(np.einsum("nd,nd->n", d, d), 1e-300), 0, 1)
+        close = np.hypot(*(a[i] + t[:, None] * d - extra[k]).T) <= gap
+        drop = np.zeros(len(extra), bool)
+        drop[k[close]] = True
+        extra = extra[~drop]
+    if len(extra) > 1:
+        pairs = cKDTree(extra).query_pairs(gap, output_type="ndarray")
+        drop = np.zeros(len(extra), bool)
+        drop[pairs.max(axis=1)] = True
+        extra = extra[~drop]
+    return extra
 
 
 def _snap_ends_to_border(cp, domain, eps) -> np.ndarray:

@@ -37,6 +37,7 @@ def fit(
     feature_bits: int = 8,
     data_range: float = 1.0,
     final_lr: float | None = None,
+    weight_bits: int | None = None,
 ) -> dict:
     """Train ``model`` in place on batches from a data sampler (``dfc.train.loop.train`` with ``DataLoss``).
 
@@ -54,13 +55,16 @@ def fit(
     qat_steps : the last ``qat_steps`` steps run with ``model.quantization = {"feature_bits":
         feature_bits}`` (quantised features, fp16 decoder weights), which stays set on return so the
         model evaluates as the written file will decode
+    weight_bits : with ``qat_steps``, the weight matrices are ``weight_bits``-bit integers per row during those
+        steps (``dfc.field.quantize.quantize_weights``) instead of fp16
     final_lr : if given, the learning rate decays geometrically from ``lr`` to ``final_lr`` over the run
 
     Returns
     -------
     dict with ``loss`` and ``psnr``: lists of floats, one per step
     """
-    schedule = Schedule(steps, lr=lr, final_lr=final_lr, betas=betas, qat_steps=qat_steps, feature_bits=feature_bits)
+    schedule = Schedule(steps, lr=lr, final_lr=final_lr, betas=betas, qat_steps=qat_steps, feature_bits=feature_bits,
+                        weight_bits=weight_bits)
     return train(model, DataLoss(loss, data_range), sampler, schedule, seed=seed, callback=callback)
 
 
@@ -74,6 +78,8 @@ MAX_DROPPED_FRACTION = 0.5
 """``fit_image`` keeps mixed pixels after all when they are more than this share of the image."""
 MAX_CACHED_SAMPLES = 1 << 22
 """``fit_image`` caches point location for at most this many samples (≈ 100 bytes each)."""
+MAX_CARRY_POINTS = 1 << 18
+"""``fit_samples`` carries a previous fit over at about this many of the sample positions."""
 
 
 def fit_image(
@@ -88,12 +94,15 @@ def fit_image(
     device: str = "cpu",
     qat_steps: int | None = None,
     feature_bits: int = 8,
+    weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
     lr: float = 1e-2,
     final_lr: float | None = 1e-3,
     mixed_pixels: str = "drop",
     data_range: float | None = None,
+    init: FieldModel | None = None,
+    exclude: np.ndarray | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster covering ``mesh.domain``.
@@ -109,6 +118,7 @@ def fit_image(
     loss : {"auto", "mse", "relmse"}; "auto" is "relmse" for HDR images (any value > 1), else "mse"
     qat_steps : quantisation-aware final steps (default ``DEFAULT_QAT_FRACTION`` of ``steps``)
     feature_bits : bits of the features during those steps (as the file will store them)
+    weight_bits : bits of the integer weight matrices during those steps (None: fp16, as ``MLPW`` stores them)
     callback : ``callback(step, loss, batch_psnr)`` after each step
     channels : output channel names (default: the Image's, else R, G, B[, A] / Y / c0, c1, …)
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (None: constant)
@@ -117,6 +127,9 @@ def fit_image(
         values near every edge towards the blend, visible as a soft band at zoom. Ignored when it
         would leave out more than ``MAX_DROPPED_FRACTION`` of the pixels.
     data_range : of the batch PSNR the callback sees (default ``dfc.metrics.data_range`` of the image)
+    init : a model fitted before on another mesh of the same curves: the fit starts from it
+        (``dfc.field.transfer.carry_over`` at every pixel centre) instead of from scratch
+    exclude : optional (H, W) bool, pixels never trained on besides the mixed ones (held out to measure the fit)
     **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform; the transform
         defaults to "log" for HDR images whose values are all > -1, else "identity")
 
@@ -134,16 +147,25 @@ def fit_image(
     field = model.field
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
+    held_out = exclude
     exclude = edge_pixels(mesh, *pixels.shape[:2]) if mixed_pixels == "drop" else None
     if exclude is not None and exclude.mean() > MAX_DROPPED_FRACTION:
         exclude = None
+    if held_out is not None:
+        exclude = held_out if exclude is None else exclude | held_out
+    if init is not None:
+        from ..field.transfer import carry_over
+        from ..render import window_points
+
+        carry_over(init, model, window_points(mesh.domain, pixels.shape[1], pixels.shape[0]))
     n = pixels.shape[0] * pixels.shape[1]
     cached = n <= MAX_CACHED_SAMPLES
     sampler = image_sampler(
         pixels, mesh.domain, batch_size, device=device, query=field.query if cached else None,
         jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=seed, exclude=exclude,
     )
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+        weight_bits=weight_bits, **run)
     return model
 
 
@@ -197,11 +219,13 @@ def fit_samples(
     device: str = "cpu",
     qat_steps: int | None = None,
     feature_bits: int = 8,
+    weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
     lr: float = SAMPLES_LR,
     final_lr: float | None = SAMPLES_FINAL_LR,
     data_range: float | None = None,
+    init: FieldModel | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a sample set (noisy values at scattered, possibly repeated points).
@@ -212,11 +236,13 @@ def fit_samples(
     mesh : dfc.geometry.mesh.Mesh
     steps : optimiser steps (default ``DEFAULT_STEPS``)
     batch_size : samples per step (shuffled epochs, see ``point_sampler``)
-    dim, seed, qat_steps, feature_bits, callback, data_range, **model_kw : as in ``fit_image``
+    dim, seed, qat_steps, feature_bits, weight_bits, callback, data_range, **model_kw : as in ``fit_image``
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (lower than ``fit_image``'s, see
         ``SAMPLES_LR``)
     loss : {"auto", "mse", "relmse"}; "auto" is "relmse" when some value is > 1 (HDR), else "mse"
     channels : output channel names (default: the sample set's, else ``dfc.io.samples.default_channels``)
+    init : a model fitted before on another mesh of the same curves: the fit starts from it
+        (``dfc.field.transfer.carry_over`` at up to ``MAX_CARRY_POINTS`` of the sample positions)
 
     Returns
     -------
@@ -235,9 +261,14 @@ def fit_samples(
     if channels is None:
         channels = samples.channels or default_channels(values.shape[1])
     model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw)
+    if init is not None:
+        from ..field.transfer import carry_over
+
+        carry_over(init, model, xy[::max(1, len(xy) // MAX_CARRY_POINTS)])
     cached = len(xy) <= MAX_CACHED_SAMPLES
     sampler = point_sampler(xy, values, batch_size, device=device, query=model.field.query if cached else None)
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+        weight_bits=weight_bits, **run)
     return model
 
 
@@ -253,6 +284,7 @@ def fit_frames(
     device: str = "cpu",
     qat_steps: int | None = None,
     feature_bits: int = 8,
+    weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
     lr: float = 1e-2,
@@ -279,6 +311,7 @@ def fit_frames(
     exclude = edge_pixels(mesh, *frames.shape[1:3])
     sampler = frame_sampler(frames, sequence.times, mesh.domain, batch_size, device=device,
                             exclude=exclude if exclude.mean() <= MAX_DROPPED_FRACTION else None)
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+        weight_bits=weight_bits, **run)
     return model
 

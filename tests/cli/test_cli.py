@@ -15,8 +15,10 @@ import torch
 from dfc.bench.scenes import sample_scene
 from dfc.cli import main
 from dfc.codec import load
+from dfc.geometry.pixels import edge_pixels
 from dfc.io.image import read_image, write_exr
 from dfc.metrics import psnr
+from dfc.render import EDGE_SPP
 
 from ..conftest import SAMPLES
 
@@ -91,8 +93,8 @@ def test_decode_any_size_and_window_samples_pixel_centres(encoded, tmp_path, cap
     path, _ = encoded
     model = load(path)
     out = tmp_path / "w.exr"
-    code, _, err = run(["decode", path, "-o", out, "--float", "--size", "40x30", "--window", "100,50,140,80", "-q"],
-                       capsys)
+    window = ["--size", "40x30", "--window", "100,50,140,80"]
+    code, _, err = run(["decode", path, "-o", out, "--float", *window, "--edge-spp", "0", "-q"], capsys)
     assert code == 0, err
     img = read_image(out).pixels
     assert img.shape == (30, 40, 3)
@@ -100,6 +102,15 @@ def test_decode_any_size_and_window_samples_pixel_centres(encoded, tmp_path, cap
     with torch.no_grad():
         direct = model(torch.from_numpy(np.stack([xs.ravel(), ys.ravel()], 1))).numpy().reshape(30, 40, 3)
     np.testing.assert_allclose(img, direct, rtol=0, atol=1e-6)
+    # at the input's resolution (1 domain unit per pixel) the default averages the pixels an edge crosses
+    code, _, err = run(["decode", path, "-o", out, "--float", *window, "-q"], capsys)
+    assert code == 0, err
+    mixed = edge_pixels(model.field.mesh, 30, 40, (100, 50, 140, 80))
+    boxed = read_image(out).pixels
+    assert mixed.any() and not mixed.all()
+    np.testing.assert_allclose(boxed[~mixed], direct[~mixed], rtol=0, atol=1e-6)
+    assert np.abs(boxed[mixed] - direct[mixed]).max() > 0.05
+    np.testing.assert_allclose(boxed, model.render(40, 30, (100, 50, 140, 80), edge_spp=EDGE_SPP), rtol=0, atol=1e-6)
     png = tmp_path / "big.png"
     code, _, err = run(["decode", path, "-o", png, "--size", "1024x1024", "-q"], capsys)
     assert code == 0, err

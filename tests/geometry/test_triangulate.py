@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from dfc.errors import MeshError
+from dfc.errors import MeshError, TriangleBudgetError
 from dfc.geometry import bezier
 from dfc.geometry.curves import Curves, elevate, read_curves
 from dfc.geometry.triangulate import _box_pairs, triangulate
@@ -112,6 +112,33 @@ def test_fuzzed_curves_mesh_validate_and_keep_every_piece(curves, density):
     assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
 
 
+@settings(max_examples=30, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(curves=curve_sets(), n_extra=st.integers(1, 60), seed=st.integers(0, 2**16))
+def test_fuzzed_extra_points_keep_the_mesh_valid_and_the_curves(curves, n_extra, seed):
+    """Refinement vertices anywhere (also on curves, outside the domain, on top of each other): a valid mesh that
+    still draws the curves, with every kept point a vertex."""
+    base_stats = {}
+    try:
+        base = triangulate(curves, max_triangles=200, stats=base_stats)
+    except TriangleBudgetError:
+        assume(False)  # the curves alone need more than 200 triangles
+    except MeshError as e:
+        assume(not re.search("tangent at their shared endpoint|cannot separate|would be split", str(e)))
+        raise
+    rng = np.random.default_rng(seed)
+    extra = rng.uniform([-0.5, -0.5], [4.5, 3.5], (n_extra, 2))
+    extra = np.concatenate([extra, extra[:3] + 1e-9, base.vertices[:2], samples(curves.control_points, 0.5)[:5]])
+    stats = {}
+    mesh = triangulate(curves, max_triangles=200, extra_points=extra, stats=stats)
+    mesh.validate()
+    assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
+    # every kept point is a vertex besides the base mesh's (apexes of curved pieces come and go with the points)
+    assert mesh.n_vertices - stats["apexes"] >= base.n_vertices - base_stats["apexes"] + stats["extra"]
+    if stats["extra"]:
+        d, _ = cKDTree(mesh.vertices).query(extra)
+        assert (d < 1e-12).sum() >= stats["extra"]
+
+
 # ---------------------------------------------------------------------------------------------- fixed cases
 
 
@@ -200,6 +227,23 @@ def test_bad_arguments(kwargs, match):
 def test_rejects_non_curves():
     with pytest.raises(MeshError, match="expected Curves"):
         triangulate(np.zeros((1, 4, 2)))
+
+
+def test_extra_points_become_vertices_where_they_are_free():
+    curves = make_curves([(1, [(0.5, 0.5), (3.5, 2.5)]), (2, [(0.5, 2.5), (2.0, 0.5), (3.5, 2.8)])])
+    base = triangulate(curves, max_triangles=60)
+    free = np.array([[3.0, 0.6], [0.6, 1.6], [3.6, 0.3]])
+    on_line = np.array([[2.0, 1.5]])  # on the straight piece
+    outside = np.array([[-1.0, 1.0], [4.0, 1.0]])  # outside, on the border
+    near = base.vertices[:1] + 1e-12  # on an existing vertex
+    stats = {}
+    mesh = triangulate(curves, max_triangles=60, extra_points=np.concatenate([free, on_line, outside, near, free]),
+                       stats=stats)
+    mesh.validate()
+    assert stats["extra"] == len(free) and mesh.n_vertices == base.n_vertices + len(free)
+    assert cKDTree(mesh.vertices).query(free)[0].max() < 1e-12
+    assert np.array_equal(mesh.disc_edges.shape, base.disc_edges.shape)  # the line piece stays one edge
+    assert np.allclose(np.sort(mesh.curve_control_points.reshape(-1)), np.sort(base.curve_control_points.reshape(-1)))
 
 
 def test_stats_report_every_stage():
