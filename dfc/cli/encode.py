@@ -42,6 +42,12 @@ def _times(ctx, param, value):
         raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
 
 
+def _weight_bits(ctx, param, value):
+    if value == 1:
+        raise click.BadParameter("integer weights need 2 to 16 bits (a sign and a magnitude); 0 stores float16")
+    return value
+
+
 @click.command()
 @click.argument("input_paths", metavar="INPUT...", nargs=-1, required=True,
                 type=click.Path(exists=True, dir_okay=False))
@@ -59,7 +65,7 @@ def _times(ctx, param, value):
               help="Bits per stored feature value.")
 @click.option("--mesh-bits", type=click.IntRange(1, 23), default=20, show_default=True,
               help="Draco quantisation bits of the vertex positions.")
-@click.option("--weight-bits", type=click.IntRange(0, 16), default=8, show_default=True,
+@click.option("--weight-bits", type=click.IntRange(0, 16), default=8, show_default=True, callback=_weight_bits,
               help="Bits per integer MLP weight (per-row scales, learnt in the quantisation-aware steps); 0: float16.")
 @click.option("--feature-coding", type=click.Choice(["predicted", "plain"]), default="predicted", show_default=True,
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")

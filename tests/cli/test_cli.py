@@ -170,6 +170,8 @@ def test_input_errors_are_one_line(encoded, tmp_path, capsys):
     cases.append((["decode", path, "-o", tmp_path / "o10.exr", "--time", "0.5"], "time axis"))
     cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o11.dfield",
                    "--device", "tpu"], "--device"))
+    cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o12.dfield",
+                   "--weight-bits", "1"], "--weight-bits"))
     for argv, match in cases:
         code, _, err = run(argv, capsys)
         assert_one_line_error(code, err, match)
