@@ -1,0 +1,361 @@
+"""Visible discontinuity curves of a Mitsuba 3 scene, in the pixels of its render (``dfc curves SCENE.xml``).
+
+The paper's curves for rendered images (§6.1): the edges where a render can jump, projected into the image and
+clipped against what hides them.
+
+1. **Geometry.** Every shape Mitsuba loads as a triangle mesh (obj, ply, serialized, cube, rectangle, …; its
+   ``to_world`` already applied by Mitsuba) gives its *feature edges* (``edges``): silhouettes, boundaries and
+   creases. Spheres give their exact contour, disks their rim, cylinders their rims and two silhouette lines
+   (``conics``). Other shape types are refused.
+2. **Intersections** (optional): where meshes cut through each other (``intersections``).
+3. **Visibility.** Mesh edges are clipped to the camera's view exactly, then sampled along their image every
+   ``step`` pixels and tested with Mitsuba's ray tracer; each change of visibility is located by bisection to
+   ``PRECISION`` pixels (``visibility``). Conic arcs likewise, in their angle.
+4. **Curves.** Visible edge pieces are chained through shared mesh vertices, and each chain becomes lines and
+   cubic Béziers within ``tolerance`` pixels of it (``chains``); visible conic arcs become cubics within
+   ``min(tolerance, ARC_TOLERANCE)`` of the exact conic.
+
+The result's domain is the rendered image ``[0, W] × [0, H]`` (the film's crop window when it has one), y down,
+as in ``spec/conventions.md``: a point projected here lands on the pixel Mitsuba renders it in.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from ....errors import InputError
+from ....io.mitsuba import Camera, import_mitsuba, load_scene, perspective_sensor
+from ...curves import Curves
+from . import conics
+from .chains import chain, fit_polylines
+from .edges import BOUNDARY, INTERSECTION, SILHOUETTE, edge_table, feature_kinds, weld
+from .intersections import MeshPart, intersection_segments
+from .visibility import Occlusion, visible_runs
+
+__all__ = ["read_scene", "STAGES", "PRECISION", "ARC_TOLERANCE"]
+
+PRECISION = 1e-3
+"""Visibility changes are located to this many pixels (the issue asks for 0.01)."""
+ARC_TOLERANCE = 0.01
+"""Cubics stay this close (px) to the exact image of a sphere contour, disk rim or cylinder rim."""
+MIN_CUT_PIECE = 0.05
+"""Visible pieces shorter than this (px) with an end cut by visibility are dropped: they are the stubs a hidden
+edge shows next to a visible vertex, where the occluding faces meet the edge within Mitsuba's precision."""
+STAGES = ("load", "edges", "intersections", "visibility", "curves")
+"""The stages ``progress`` is told about, in order; ``stats`` gets ``<stage>_s`` for each."""
+_SUPPORTED = "meshes (obj, ply, serialized, cube, rectangle, ...), spheres, disks and cylinders"
+
+
+def read_scene(path: str | Path, *, sensor: int = 0, crease_angle: float = 30.0, creases: bool = True,
+               intersections: bool = True, tolerance: float = 0.05, step: float = 0.5, stats: dict | None = None,
+               progress: Callable[[str], None] | None = None) -> Curves:
+    """The visible silhouette, boundary, crease (and intersection) curves of a Mitsuba 3 scene seen by a sensor.
+
+    Parameters
+    ----------
+    path : the scene's XML file
+    sensor : index of the (perspective) sensor among the scene's sensors
+    crease_angle : degrees; mesh edges whose faces' normals differ by at least this much are creases
+    creases : False drops creases (silhouettes and boundaries remain)
+    intersections : trace where meshes cut through each other
+    tolerance : px, how far fitted lines and cubics may stray from the projected polylines
+    step : px, the visibility sampling interval along each curve's image
+    stats : filled with counts (``triangles``, ``edges``, ``tested``, ``rays``, ``curves``, ``pieces``, …) and
+        seconds per stage (``load_s``, …, ``total_s``)
+    progress : called with each stage's name (``STAGES``) as it begins
+
+    Returns
+    -------
+    Curves over the rendered image's domain: one input curve per chain (named after its shape), lines and cubics.
+
+    Raises
+    ------
+    InputError for a file that is not a usable Mitsuba scene (not a scene, missing mesh file, unknown plugin, no
+    perspective sensor, an unsupported shape), ExtraError without Mitsuba.
+    """
+    if not tolerance > 0 or not step > 0 or not 0 <= crease_angle <= 180:
+        raise ValueError(f"need tolerance > 0, step > 0 and crease_angle in [0, 180], got "
+                         f"{tolerance}, {step}, {crease_angle}")
+    stats = {} if stats is None else stats
+    clock = _Clock(stats, progress)
+    clock.stage("load")
+    import_mitsuba()
+    scene = load_scene(path)
+    camera = Camera.from_sensor(perspective_sensor(scene, sensor, path))
+    clock.stage("edges")
+    geometry = _Geometry(scene, camera, path, crease_angle, creases)
+    occlusion = Occlusion(scene, camera, geometry.offsets, geometry.is_mesh)
+    stats["triangles"] = geometry.triangles
+    stats["edges"] = geometry.edges
+    clock.stage("intersections")
+    if intersections:
+        geometry.add_intersections(occlusion)
+    stats["intersection_segments"] = geometry.n_intersections
+    stats["intersection_rays"] = occlusion.rays
+    occlusion.rays = 0
+    clock.stage("visibility")
+    runs = _visible_segments(geometry, camera, occlusion, step, stats)
+    arc_runs = _visible_arcs(geometry.arcs, camera, occlusion, step, stats)
+    stats["visibility_rays"] = occlusion.rays
+    clock.stage("curves")
+    curves = _curves(geometry, camera, runs, arc_runs, tolerance, path)
+    stats["curves"] = curves.n_curves
+    stats["pieces"] = len(curves)
+    stats["lines"] = int(np.sum(curves.degree == 1))
+    stats["cubics"] = int(np.sum(curves.degree == 3))
+    clock.stage(None)
+    return curves
+
+
+class _Clock:
+    def __init__(self, stats: dict, progress):
+        self.stats, self.progress, self.name = stats, progress, None
+        self.start = self.t = time.perf_counter()
+
+    def stage(self, name: str | None) -> None:
+        now = time.perf_counter()
+        if self.name is not None:
+            self.stats[f"{self.name}_s"] = now - self.t
+        self.name, self.t = name, now
+        if name is None:
+            self.stats["total_s"] = now - self.start
+        elif self.progress is not None:
+            self.progress(name)
+
+
+class _Geometry:
+    """Candidate curves of a scene in world space.
+
+    Segments: ``a``, ``b`` (S, 3) float64; ``owners`` (S, 2) int64 global primitive ids; ``ids`` (S, 2) int64 end
+    point ids (shared ids: the same point); ``kind`` (S,) uint8; ``shape`` (S,) int64. Arcs: ``arcs``
+    (``conics.Ellipses``). ``offsets`` (n_shapes + 1,) int64 global primitive id of each shape's first primitive;
+    ``is_mesh`` (n_shapes,) bool; ``labels`` a name per shape; ``point_shape`` the shape of each point id.
+    """
+
+    def __init__(self, scene, camera: Camera, path, crease_angle: float, creases: bool):
+        shapes = list(scene.shapes())
+        self.labels = [_label(s, i) for i, s in enumerate(shapes)]
+        self.is_mesh = np.array([s.is_mesh() for s in shapes], dtype=bool)
+        counts = [s.face_count() if m else 1 for s, m in zip(shapes, self.is_mesh)]
+        self.offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
+        self.triangles = int(sum(c for c, m in zip(counts, self.is_mesh) if m))
+        self.edges = 0
+        self.parts: list[MeshPart] = []
+        seg, arcs, point_shape = [], [], []
+        n_points = 0
+        eye = camera.eye
+        for i, s in enumerate(shapes):
+            kind = s.class_name()
+            if s.is_mesh():
+                vertices = np.array(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+                faces = np.array(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+                vertices, faces = weld(vertices, faces)
+                table = edge_table(faces)
+                self.edges += len(table.edges)
+                self.parts.append(MeshPart(i, int(self.offsets[i]), vertices, faces, table.edges, table.faces))
+                bits = feature_kinds(vertices, table, eye, crease_angle=crease_angle, creases=creases)
+                (sel,) = np.nonzero(bits)
+                ends = table.edges[sel]
+                owners = np.where(table.faces[sel] >= 0, table.faces[sel] + self.offsets[i], -1)
+                seg.append((vertices[ends[:, 0]], vertices[ends[:, 1]], owners, ends + n_points, bits[sel], i))
+                point_shape.append(np.full(len(vertices), i))
+                n_points += len(vertices)
+                continue
+            to_world = _to_world(s)
+            gid = int(self.offsets[i])
+            if kind == "Sphere":
+                radius = float(np.linalg.norm(to_world[:3, 0]))
+                arcs.append(conics.sphere_contours(to_world[:3, 3], radius, eye, i, SILHOUETTE))
+            elif kind == "Disk":
+                arcs.append(conics.disk_rim(to_world, i, BOUNDARY))
+            elif kind == "Cylinder":
+                rims, lines = conics.cylinder_outline(to_world, eye, i, BOUNDARY, SILHOUETTE)
+                arcs.append(rims)
+                k = len(lines)
+                ids = n_points + np.arange(2 * k).reshape(k, 2)
+                seg.append((lines[:, 0], lines[:, 1], np.c_[np.full(k, gid), np.full(k, -1)], ids,
+                            np.full(k, SILHOUETTE, np.uint8), i))
+                point_shape.append(np.full(2 * k, i))
+                n_points += 2 * k
+            else:
+                raise InputError(f"{path}: {self.labels[i]} is a {kind}; dfc curves handles {_SUPPORTED}")
+        self.arcs = conics.Ellipses.concat(arcs)
+        self.a = np.concatenate([x[0] for x in seg]) if seg else np.zeros((0, 3))
+        self.b = np.concatenate([x[1] for x in seg]) if seg else np.zeros((0, 3))
+        self.owners = np.concatenate([x[2] for x in seg]) if seg else np.zeros((0, 2), np.int64)
+        self.ids = np.concatenate([x[3] for x in seg]) if seg else np.zeros((0, 2), np.int64)
+        self.kind = np.concatenate([x[4] for x in seg]) if seg else np.zeros(0, np.uint8)
+        self.shape = np.concatenate([np.full(len(x[0]), x[5]) for x in seg]) if seg else np.zeros(0, np.int64)
+        self.point_shape = np.concatenate(point_shape) if point_shape else np.zeros(0, np.int64)
+        self.n_intersections = 0
+
+    def add_intersections(self, occlusion: Occlusion) -> None:
+        ends, owners, keys, shape = intersection_segments(occlusion, self.parts)
+        n_points = len(self.point_shape)
+        key_shape = np.zeros(int(keys.max()) + 1 if len(keys) else 0, np.int64)
+        key_shape[keys[:, 0]], key_shape[keys[:, 1]] = shape, shape
+        self.a, self.b = np.r_[self.a, ends[:, 0]], np.r_[self.b, ends[:, 1]]
+        self.owners, self.ids = np.r_[self.owners, owners], np.r_[self.ids, keys + n_points]
+        self.kind = np.r_[self.kind, np.full(len(ends), INTERSECTION, np.uint8)]
+        self.shape = np.r_[self.shape, shape]
+        self.point_shape = np.r_[self.point_shape, key_shape]
+        self.n_intersections = len(ends)
+
+
+def _to_world(shape) -> np.ndarray:
+    """The (4, 4) ``to_world`` matrix of an analytic shape."""
+    mi = import_mitsuba()
+    return np.array(mi.traverse(shape)["to_world"].matrix, dtype=np.float64)
+
+
+def _label(shape, index: int) -> str:
+    name = shape.id()
+    kind = shape.class_name().lower()
+    return f"{kind} {name!r}" if name else f"shape {index} ({kind})"
+
+
+def _clip(camera: Camera, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Parameters ``[t0, t1]`` (S,) of the parts of segments ``a``–``b`` (S, 3) inside the view: in front of the
+    near plane, before the far one, and projecting into the film (Liang–Barsky in homogeneous coordinates, where
+    every bound is linear along the segment). Empty parts have ``t0 >= t1``."""
+    ha, hb = camera.homogeneous(a), camera.homogeneous(b)
+    width, height = camera.size
+
+    def bounds(h):  # each column >= 0 inside the view
+        u, v, w = h[:, 0], h[:, 1], h[:, 2]
+        return np.stack([w - camera.near, camera.far - w, u, width * w - u, v, height * w - v], axis=1)
+
+    fa, fb = bounds(ha), bounds(hb)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cross = fa / (fa - fb)
+    t0 = np.max(np.where((fa < 0) & (fb >= 0), cross, 0.0), axis=1, initial=0.0)
+    t1 = np.min(np.where((fb < 0) & (fa >= 0), cross, 1.0), axis=1, initial=1.0)
+    outside = np.any((fa < 0) & (fb < 0), axis=1)
+    return t0, np.where(outside, -1.0, t1)
+
+
+def _visible_segments(g: _Geometry, camera: Camera, occlusion: Occlusion, step: float, stats: dict):
+    """Visible parts of the candidate segments: (segment (R,), image ends (R, 2, 2), end ids (R, 2)); ends cut by
+    the view or by an occluder get fresh ids."""
+    t0, t1 = _clip(camera, g.a, g.b)
+    (inside,) = np.nonzero(t1 > t0)
+    d = g.b[inside] - g.a[inside]
+    a = g.a[inside] + t0[inside, None] * d
+    b = g.a[inside] + t1[inside, None] * d
+    pa, wa = camera.project(a)
+    pb, wb = camera.project(b)
+    pa, pb = _onto_border(pa, camera.size), _onto_border(pb, camera.size)
+    owners = g.owners[inside]
+    stats["tested"] = len(inside)
+
+    def predicate(item, s):  # s: position along the image segment; t: along the world segment
+        t = s * wa[item] / (s * wa[item] + (1.0 - s) * wb[item])
+        return occlusion.visible(a[item] + t[:, None] * (b[item] - a[item]), owners[item])
+
+    speed = np.linalg.norm(pb - pa, axis=1)
+    item, s0, s1, at_lo, at_hi = visible_runs(predicate, np.zeros(len(inside)), np.ones(len(inside)), speed,
+                                              step=step, precision=PRECISION)
+    ends = np.stack([pa[item] + s0[:, None] * (pb[item] - pa[item]),
+                     pa[item] + s1[:, None] * (pb[item] - pa[item])], axis=1)
+    ends[at_lo, 0] = pa[item[at_lo]]
+    ends[at_hi, 1] = pb[item[at_hi]]
+    seg = inside[item]
+    ids = np.full((len(item), 2), -1, np.int64)
+    keep_a = at_lo & (t0[seg] == 0.0)
+    keep_b = at_hi & (t1[seg] == 1.0)
+    ids[keep_a, 0] = g.ids[seg[keep_a], 0]
+    ids[keep_b, 1] = g.ids[seg[keep_b], 1]
+    stats["visible_segments"] = len(item)
+    return seg, ends, ids
+
+
+def _onto_border(p: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Points (N, 2) within rounding of the film's border put exactly on it."""
+    p = p.copy()
+    for axis, extent in enumerate(size):
+        for edge in (0.0, float(extent)):
+            near = np.abs(p[:, axis] - edge) <= 1e-7 * max(size)
+            p[near, axis] = edge
+    return p
+
+
+def _visible_arcs(arcs: conics.Ellipses, camera: Camera, occlusion: Occlusion, step: float, stats: dict):
+    """Visible runs of the arcs: (arc (R,), θ0 (R,), θ1 (R,)), a run around the closing point of a closed arc
+    joined into one."""
+    stats["tested_arcs"] = len(arcs)
+    if not len(arcs):
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    owners = np.c_[occlusion.offsets[arcs.shape], np.full(len(arcs), -1)]
+    probe = 256
+    k = np.repeat(np.arange(len(arcs)), probe)
+    theta = (arcs.start[:, None] + (arcs.stop - arcs.start)[:, None] * np.linspace(0, 1, probe)).ravel()
+    _, d = conics._image(camera, arcs, k, theta)
+    w = camera.homogeneous(arcs.point(k, theta))[:, 2]
+    speed = np.where(w > camera.near, np.linalg.norm(d, axis=1), 0.0).reshape(-1, probe).max(axis=1) * 1.25
+
+    def predicate(item, t):
+        points = arcs.point(item, t)
+        return occlusion.visible(points, owners[item]) & ~arcs.hidden_by_own_cylinder(item, points, camera.eye)
+
+    item, t0, t1, at_lo, at_hi = visible_runs(predicate, arcs.start, arcs.stop, speed, step=step,
+                                              precision=PRECISION)
+    # a closed arc seen across its closing point: its last run continues into its first
+    first = np.r_[True, item[1:] != item[:-1]]
+    last = np.r_[item[1:] != item[:-1], True]
+    head = np.nonzero(first & ~last & at_lo & arcs.closed[item])[0]
+    tail = np.searchsorted(item, item[head], side="right") - 1
+    join = at_hi[tail]
+    head, tail = head[join], tail[join]
+    t1[tail] = t1[head] + (arcs.stop - arcs.start)[item[head]]
+    keep = np.ones(len(item), bool)
+    keep[head] = False
+    stats["visible_arcs"] = int(keep.sum())
+    return item[keep], t0[keep], t1[keep]
+
+
+def _curves(g: _Geometry, camera: Camera, runs, arc_runs, tolerance: float, path) -> Curves:
+    """Chains of visible segments fitted with lines and cubics, then the visible arcs as cubics."""
+    seg, ends, ids = runs
+    length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)
+    keep = (length > 0) & ((length >= MIN_CUT_PIECE) | np.all(ids >= 0, axis=1))
+    seg, ends, ids = seg[keep], ends[keep], ids[keep]
+    fresh = ids < 0
+    ids[fresh] = len(g.point_shape) + np.arange(int(fresh.sum()))
+    point_shape = np.r_[g.point_shape, np.repeat(g.shape[seg], 2).reshape(-1, 2)[fresh]]
+    flat_ids, flat_xy = ids.ravel(), ends.reshape(-1, 2)
+    unique, first = np.unique(flat_ids, return_index=True)
+    chain_ids, offsets, _ = chain(ids)
+    xy = flat_xy[first[np.searchsorted(unique, chain_ids)]]
+    cp, degree, polyline = fit_polylines(xy, offsets, tolerance)
+    names = [f"{g.labels[s]} edges" for s in point_shape[chain_ids[offsets[:-1]]]]
+
+    arc, th0, th1 = arc_runs
+    arc_cp, arc_run = conics.arcs_to_beziers(camera, g.arcs, arc, th0, th1, min(tolerance, ARC_TOLERANCE))
+    _arc_ends_onto_border(arc_cp, arc_run, camera.size)
+    names += [f"{g.labels[s]} outline" for s in g.arcs.shape[arc]]
+    n = len(offsets) - 1
+    control_points = np.concatenate([cp, arc_cp])
+    degrees = np.r_[degree, np.full(len(arc_cp), 3, np.int8)]
+    curve = np.r_[polyline, n + arc_run]
+    k = np.arange(len(curve)) - np.searchsorted(curve, curve)  # index of each piece within its curve
+    return Curves((0.0, 0.0, float(camera.size[0]), float(camera.size[1])), control_points, degrees, curve,
+                  np.stack([k, k + 1.0], axis=1), names, [None] * len(names), str(path))
+
+
+def _arc_ends_onto_border(cp: np.ndarray, run: np.ndarray, size) -> None:
+    """Move the ends of arc runs (pieces ``cp`` (P, 4, 2) of runs ``run`` (P,)) that the bisection left within
+    twice its precision of the film's border exactly onto it, with their neighbouring control point (in place)."""
+    if not len(run):
+        return
+    start = np.nonzero(np.r_[True, run[1:] != run[:-1]])[0]
+    stop = np.nonzero(np.r_[run[1:] != run[:-1], True])[0]
+    for pieces, end, inner in ((start, 0, 1), (stop, 3, 2)):
+        for axis, extent in enumerate(size):
+            for edge in (0.0, float(extent)):
+                near = pieces[np.abs(cp[pieces, end, axis] - edge) <= 2 * PRECISION]
+                cp[near, inner, axis] += edge - cp[near, end, axis]
+                cp[near, end, axis] = edge
