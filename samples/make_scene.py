@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from dfc.io.mitsuba import write_ply
+
 HERE = Path(__file__).parent / "scene"
 
 
@@ -44,16 +46,6 @@ def gem(sides: int) -> tuple[np.ndarray, np.ndarray]:
         np.stack([k, k1, np.full(sides, bottom)], 1),  # pavilion
     ])
     return vertices, faces
-
-
-def write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """A binary little-endian PLY with float32 vertices and int32 triangle indices."""
-    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(vertices)}\n"
-              "property float x\nproperty float y\nproperty float z\n"
-              f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
-    face_rows = np.zeros(len(faces), dtype=[("n", "u1"), ("i", "<i4", 3)])
-    face_rows["n"], face_rows["i"] = 3, faces
-    path.write_bytes(header.encode() + vertices.astype("<f4").tobytes() + face_rows.tobytes())
 
 
 SCENE = """<scene version="3.0.0">

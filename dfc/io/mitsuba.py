@@ -16,8 +16,8 @@ import numpy as np
 
 from ..errors import ExtraError, InputError
 
-__all__ = ["VARIANT", "Camera", "check_scene_file", "import_mitsuba", "load_scene", "perspective_sensor",
-           "render_window", "window_sensor"]
+__all__ = ["VARIANT", "Camera", "check_scene_file", "flat_shaded", "import_mitsuba", "load_scene",
+           "perspective_sensor", "render_aovs", "render_window", "window_sensor", "write_ply"]
 
 VARIANT = "scalar_rgb"
 _INSTALL = "pip install 'dfc[render]'"
@@ -67,6 +67,11 @@ def load_scene(path: str | Path):
         return mi.load_file(str(path))
     except Exception as e:  # Mitsuba raises RuntimeError, and TypeError/ValueError from its bindings
         raise InputError(f"{path}: {_one_line(str(e))}") from None
+
+
+def _loaded(scene) -> tuple[str | Path, object]:
+    """(name for messages, Mitsuba scene) of a scene file or an already loaded scene."""
+    return (scene, load_scene(scene)) if isinstance(scene, (str, Path)) else ("scene", scene)
 
 
 def _one_line(message: str) -> str:
@@ -141,11 +146,11 @@ class Camera:
         return h[:, :2] / h[:, 2:], h[:, 2]
 
 
-def window_sensor(base, window, width: int, height: int, *, sampler=None):
+def window_sensor(base, window, width: int, height: int, *, sampler=None, rfilter=None):
     """A perspective sensor whose film is exactly the window ``(x0, y0, x1, y1)`` (pixels of ``base``'s rendered
-    image) at ``width × height``: ``base``'s pose, clip distances and reconstruction filter, its field of view and
-    principal point set from ``base``'s intrinsics. ``sampler`` (a Mitsuba sampler or plugin dict) defaults to
-    ``base``'s. Output pixels must be square: ``width / (x1 - x0) == height / (y1 - y0)``; ``ValueError`` else."""
+    image) at ``width × height``: ``base``'s pose and clip distances, its field of view and principal point set from
+    ``base``'s intrinsics. ``sampler`` and ``rfilter`` (Mitsuba objects or plugin dicts) default to ``base``'s.
+    Output pixels must be square: ``width / (x1 - x0) == height / (y1 - y0)``; ``ValueError`` else."""
     mi = import_mitsuba()
     x0, y0, x1, y1 = (float(v) for v in window)
     if not (np.isfinite([x0, y0, x1, y1]).all() and x1 > x0 and y1 > y0):
@@ -167,7 +172,7 @@ def window_sensor(base, window, width: int, height: int, *, sampler=None):
         "far_clip": float(base.far_clip()),
         "to_world": base.world_transform(),
         "film": {"type": "hdrfilm", "width": int(width), "height": int(height), "pixel_format": "rgb",
-                 "rfilter": base.film().rfilter()},
+                 "rfilter": base.film().rfilter() if rfilter is None else rfilter},
         "sampler": base.sampler() if sampler is None else sampler,
     })
 
@@ -185,14 +190,25 @@ def render_window(scene, window, width: int, height: int, spp: int, *, sensor: i
     Raises ``ValueError`` for a malformed window, size or spp, ``InputError`` for a scene that cannot be used.
     """
     mi = import_mitsuba()
-    if isinstance(scene, (str, Path)):
-        path, scene = scene, load_scene(scene)
-    else:
-        path = "scene"
+    path, scene = _loaded(scene)
     if spp < 1:
         raise ValueError(f"spp must be at least 1, got {spp}")
     view = window_sensor(perspective_sensor(scene, sensor, path), window, width, height)
     return np.array(mi.render(scene, sensor=view, spp=int(spp), seed=int(seed)), dtype=np.float32)
+
+
+def render_aovs(scene, sensor, aovs: str, *, supersample: int = 1) -> np.ndarray:
+    """Mitsuba's ``aov`` integrator (``aovs`` as it takes them, e.g. ``"dd:depth,nn:geo_normal"``) through
+    ``sensor`` at ``supersample`` × its rendered image's size, one sample at each pixel centre, box filter.
+
+    Returns (supersample H, supersample W, C) float64, C the AOVs' channels in order.
+    """
+    mi = import_mitsuba()
+    width, height = Camera.from_sensor(sensor).size
+    view = window_sensor(sensor, (0, 0, width, height), width * supersample, height * supersample,
+                         sampler={"type": "stratified", "sample_count": 1, "jitter": False}, rfilter={"type": "box"})
+    aov = mi.load_dict({"type": "aov", "aovs": aovs})
+    return np.array(mi.render(scene, sensor=view, integrator=aov, spp=1), dtype=np.float64)
 
 
 def flat_shaded(scene, *, sensor: int = 0, supersample: int = 2) -> np.ndarray:
@@ -201,21 +217,31 @@ def flat_shaded(scene, *, sensor: int = 0, supersample: int = 2) -> np.ndarray:
 
     ``scene`` is a scene file or a loaded Mitsuba scene. Returns (H, W, 3) float32 display values in [0, 1].
     """
-    mi = import_mitsuba()
-    if isinstance(scene, (str, Path)):
-        path, scene = scene, load_scene(scene)
-    else:
-        path = "scene"
+    path, scene = _loaded(scene)
     base = perspective_sensor(scene, sensor, path)
     width, height = Camera.from_sensor(base).size
     s = int(supersample)
-    view = window_sensor(base, (0, 0, width, height), width * s, height * s,
-                         sampler={"type": "stratified", "sample_count": 1, "jitter": False})
-    aov = mi.load_dict({"type": "aov", "aovs": "si:shape_index,dd:depth,nn:geo_normal"})
-    out = np.array(mi.render(scene, sensor=view, integrator=aov, spp=1), dtype=np.float64)
+    out = render_aovs(scene, base, "si:shape_index,dd:depth,nn:geo_normal", supersample=s)
     index, hit, normal = out[..., 0].astype(np.int64), out[..., 1] > 0, out[..., 2:5]
     palette = np.random.default_rng(7).uniform(0.35, 0.95, (int(index.max()) + 1, 3))
     light = np.array([0.35, 0.8, 0.5]) / np.linalg.norm([0.35, 0.8, 0.5])
     shade = 0.45 + 0.55 * np.abs(normal @ light)
     picture = np.where(hit[..., None], palette[index] * shade[..., None], 0.8)
     return picture.reshape(height, s, width, s, 3).mean(axis=(1, 3)).astype(np.float32)
+
+
+def write_ply(path: str | Path, vertices: np.ndarray, faces: np.ndarray) -> None:
+    """A triangle mesh as a binary little-endian PLY that Mitsuba's ``ply`` plugin reads, written atomically.
+
+    vertices : (V, 3) float, stored as float32; faces : (F, 3) int, stored as int32 indices
+    """
+    from .atomic import write_bytes_atomic
+
+    vertices = np.asarray(vertices, dtype="<f4").reshape(-1, 3)
+    faces = np.asarray(faces).reshape(-1, 3)
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {len(vertices)}\n"
+              "property float x\nproperty float y\nproperty float z\n"
+              f"element face {len(faces)}\nproperty list uchar int vertex_indices\nend_header\n")
+    rows = np.zeros(len(faces), dtype=[("n", "u1"), ("i", "<i4", 3)])
+    rows["n"], rows["i"] = 3, faces
+    write_bytes_atomic(path, header.encode() + vertices.tobytes() + rows.tobytes())

@@ -27,13 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ....errors import InputError
 from ....io.mitsuba import Camera, import_mitsuba, load_scene, perspective_sensor
 from ...curves import Curves
 from . import conics
+from .candidates import Candidates
 from .chains import chain, fit_polylines
-from .edges import BOUNDARY, INTERSECTION, SILHOUETTE, edge_table, feature_kinds, weld
-from .intersections import MeshPart, intersection_segments
 from .visibility import Occlusion, visible_runs
 
 __all__ = ["read_scene", "STAGES", "PRECISION", "ARC_TOLERANCE"]
@@ -45,14 +43,14 @@ ARC_TOLERANCE = 0.01
 MIN_CUT_PIECE = 0.05
 """Visible pieces shorter than this (px) with an end cut by visibility are dropped: they are the stubs a hidden
 edge shows next to a visible vertex, where the occluding faces meet the edge within Mitsuba's precision."""
-STAGES = ("load", "edges", "intersections", "visibility", "curves")
+STAGES = ("load", "edges", "depth bound", "intersections", "visibility", "fit")
 """The stages ``progress`` is told about, in order; ``stats`` gets ``<stage>_s`` for each."""
-_SUPPORTED = "meshes (obj, ply, serialized, cube, rectangle, ...), spheres, disks and cylinders"
 
 
 def read_scene(path: str | Path, *, sensor: int = 0, crease_angle: float = 30.0, creases: bool = True,
-               intersections: bool = True, tolerance: float = 0.05, step: float = 0.5, stats: dict | None = None,
-               progress: Callable[[str], None] | None = None) -> Curves:
+               intersections: bool = True, tolerance: float = 0.05, step: float = 0.5,
+               depth_bound: bool | None = None,
+               stats: dict | None = None, progress: Callable[[str], None] | None = None) -> Curves:
     """The visible silhouette, boundary, crease (and intersection) curves of a Mitsuba 3 scene seen by a sensor.
 
     Parameters
@@ -64,6 +62,9 @@ def read_scene(path: str | Path, *, sensor: int = 0, crease_angle: float = 30.0,
     intersections : trace where meshes cut through each other
     tolerance : px, how far fitted lines and cubics may stray from the projected polylines
     step : px, the visibility sampling interval along each curve's image
+    depth_bound : settle points hidden behind the surfaces at all nine pixel centres around them from one
+        pixel-centre render, without a ray each (``visibility``); False traces every point; None (default) does
+        it when the candidates need more samples than the film has pixels (it costs a ray per pixel)
     stats : filled with counts (``triangles``, ``edges``, ``tested``, ``rays``, ``curves``, ``pieces``, …) and
         seconds per stage (``load_s``, …, ``total_s``)
     progress : called with each stage's name (``STAGES``) as it begins
@@ -85,24 +86,35 @@ def read_scene(path: str | Path, *, sensor: int = 0, crease_angle: float = 30.0,
     clock.stage("load")
     import_mitsuba()
     scene = load_scene(path)
-    camera = Camera.from_sensor(perspective_sensor(scene, sensor, path))
+    view = perspective_sensor(scene, sensor, path)
+    camera = Camera.from_sensor(view)
     clock.stage("edges")
-    geometry = _Geometry(scene, camera, path, crease_angle, creases)
-    occlusion = Occlusion(scene, camera, geometry.offsets, geometry.is_mesh)
-    stats["triangles"] = geometry.triangles
-    stats["edges"] = geometry.edges
+    candidates = Candidates(scene, camera, path, crease_angle=crease_angle, creases=creases)
+    stats["triangles"] = candidates.triangles
+    stats["mesh_edges"] = candidates.edges
+    clock.stage("depth bound")
+    if depth_bound is None:
+        t0, t1 = _clip(camera, candidates.a, candidates.b)
+        (inside,) = np.nonzero(t1 > t0)
+        d = candidates.b[inside] - candidates.a[inside]
+        pa, _ = camera.project(candidates.a[inside] + t0[inside, None] * d)
+        pb, _ = camera.project(candidates.a[inside] + t1[inside, None] * d)
+        samples = np.sum(np.linalg.norm(pb - pa, axis=1) / step + 2)
+        depth_bound = samples > camera.size[0] * camera.size[1]
+    occlusion = Occlusion(scene, camera, candidates.offsets, candidates.is_mesh, view if depth_bound else None)
+    stats["bound_rays"] = occlusion.bound_rays
     clock.stage("intersections")
     if intersections:
-        geometry.add_intersections(occlusion)
-    stats["intersection_segments"] = geometry.n_intersections
+        candidates.add_intersections(occlusion)
+    stats["intersection_segments"] = candidates.n_intersections
     stats["intersection_rays"] = occlusion.rays
     occlusion.rays = 0
     clock.stage("visibility")
-    runs = _visible_segments(geometry, camera, occlusion, step, stats)
-    arc_runs = _visible_arcs(geometry.arcs, camera, occlusion, step, stats)
+    runs = _visible_segments(candidates, camera, occlusion, step, stats)
+    arc_runs = _visible_arcs(candidates.arcs, camera, occlusion, step, stats)
     stats["visibility_rays"] = occlusion.rays
-    clock.stage("curves")
-    curves = _curves(geometry, camera, runs, arc_runs, tolerance, path)
+    clock.stage("fit")
+    curves = _curves(candidates, camera, runs, arc_runs, tolerance, path)
     stats["curves"] = curves.n_curves
     stats["pieces"] = len(curves)
     stats["lines"] = int(np.sum(curves.degree == 1))
@@ -127,97 +139,6 @@ class _Clock:
             self.progress(name)
 
 
-class _Geometry:
-    """Candidate curves of a scene in world space.
-
-    Segments: ``a``, ``b`` (S, 3) float64; ``owners`` (S, 2) int64 global primitive ids; ``ids`` (S, 2) int64 end
-    point ids (shared ids: the same point); ``kind`` (S,) uint8; ``shape`` (S,) int64. Arcs: ``arcs``
-    (``conics.Ellipses``). ``offsets`` (n_shapes + 1,) int64 global primitive id of each shape's first primitive;
-    ``is_mesh`` (n_shapes,) bool; ``labels`` a name per shape; ``point_shape`` the shape of each point id.
-    """
-
-    def __init__(self, scene, camera: Camera, path, crease_angle: float, creases: bool):
-        shapes = list(scene.shapes())
-        self.labels = [_label(s, i) for i, s in enumerate(shapes)]
-        self.is_mesh = np.array([s.is_mesh() for s in shapes], dtype=bool)
-        counts = [s.face_count() if m else 1 for s, m in zip(shapes, self.is_mesh)]
-        self.offsets = np.r_[0, np.cumsum(counts)].astype(np.int64)
-        self.triangles = int(sum(c for c, m in zip(counts, self.is_mesh) if m))
-        self.edges = 0
-        self.parts: list[MeshPart] = []
-        seg, arcs, point_shape = [], [], []
-        n_points = 0
-        eye = camera.eye
-        for i, s in enumerate(shapes):
-            kind = s.class_name()
-            if s.is_mesh():
-                vertices = np.array(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
-                faces = np.array(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
-                vertices, faces = weld(vertices, faces)
-                table = edge_table(faces)
-                self.edges += len(table.edges)
-                self.parts.append(MeshPart(i, int(self.offsets[i]), vertices, faces, table.edges, table.faces))
-                bits = feature_kinds(vertices, table, eye, crease_angle=crease_angle, creases=creases)
-                (sel,) = np.nonzero(bits)
-                ends = table.edges[sel]
-                owners = np.where(table.faces[sel] >= 0, table.faces[sel] + self.offsets[i], -1)
-                seg.append((vertices[ends[:, 0]], vertices[ends[:, 1]], owners, ends + n_points, bits[sel], i))
-                point_shape.append(np.full(len(vertices), i))
-                n_points += len(vertices)
-                continue
-            to_world = _to_world(s)
-            gid = int(self.offsets[i])
-            if kind == "Sphere":
-                radius = float(np.linalg.norm(to_world[:3, 0]))
-                arcs.append(conics.sphere_contours(to_world[:3, 3], radius, eye, i, SILHOUETTE))
-            elif kind == "Disk":
-                arcs.append(conics.disk_rim(to_world, i, BOUNDARY))
-            elif kind == "Cylinder":
-                rims, lines = conics.cylinder_outline(to_world, eye, i, BOUNDARY, SILHOUETTE)
-                arcs.append(rims)
-                k = len(lines)
-                ids = n_points + np.arange(2 * k).reshape(k, 2)
-                seg.append((lines[:, 0], lines[:, 1], np.c_[np.full(k, gid), np.full(k, -1)], ids,
-                            np.full(k, SILHOUETTE, np.uint8), i))
-                point_shape.append(np.full(2 * k, i))
-                n_points += 2 * k
-            else:
-                raise InputError(f"{path}: {self.labels[i]} is a {kind}; dfc curves handles {_SUPPORTED}")
-        self.arcs = conics.Ellipses.concat(arcs)
-        self.a = np.concatenate([x[0] for x in seg]) if seg else np.zeros((0, 3))
-        self.b = np.concatenate([x[1] for x in seg]) if seg else np.zeros((0, 3))
-        self.owners = np.concatenate([x[2] for x in seg]) if seg else np.zeros((0, 2), np.int64)
-        self.ids = np.concatenate([x[3] for x in seg]) if seg else np.zeros((0, 2), np.int64)
-        self.kind = np.concatenate([x[4] for x in seg]) if seg else np.zeros(0, np.uint8)
-        self.shape = np.concatenate([np.full(len(x[0]), x[5]) for x in seg]) if seg else np.zeros(0, np.int64)
-        self.point_shape = np.concatenate(point_shape) if point_shape else np.zeros(0, np.int64)
-        self.n_intersections = 0
-
-    def add_intersections(self, occlusion: Occlusion) -> None:
-        ends, owners, keys, shape = intersection_segments(occlusion, self.parts)
-        n_points = len(self.point_shape)
-        key_shape = np.zeros(int(keys.max()) + 1 if len(keys) else 0, np.int64)
-        key_shape[keys[:, 0]], key_shape[keys[:, 1]] = shape, shape
-        self.a, self.b = np.r_[self.a, ends[:, 0]], np.r_[self.b, ends[:, 1]]
-        self.owners, self.ids = np.r_[self.owners, owners], np.r_[self.ids, keys + n_points]
-        self.kind = np.r_[self.kind, np.full(len(ends), INTERSECTION, np.uint8)]
-        self.shape = np.r_[self.shape, shape]
-        self.point_shape = np.r_[self.point_shape, key_shape]
-        self.n_intersections = len(ends)
-
-
-def _to_world(shape) -> np.ndarray:
-    """The (4, 4) ``to_world`` matrix of an analytic shape."""
-    mi = import_mitsuba()
-    return np.array(mi.traverse(shape)["to_world"].matrix, dtype=np.float64)
-
-
-def _label(shape, index: int) -> str:
-    name = shape.id()
-    kind = shape.class_name().lower()
-    return f"{kind} {name!r}" if name else f"shape {index} ({kind})"
-
-
 def _clip(camera: Camera, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Parameters ``[t0, t1]`` (S,) of the parts of segments ``a``–``b`` (S, 3) inside the view: in front of the
     near plane, before the far one, and projecting into the film (Liang–Barsky in homogeneous coordinates, where
@@ -238,7 +159,7 @@ def _clip(camera: Camera, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.
     return t0, np.where(outside, -1.0, t1)
 
 
-def _visible_segments(g: _Geometry, camera: Camera, occlusion: Occlusion, step: float, stats: dict):
+def _visible_segments(g: Candidates, camera: Camera, occlusion: Occlusion, step: float, stats: dict):
     """Visible parts of the candidate segments: (segment (R,), image ends (R, 2, 2), end ids (R, 2)); ends cut by
     the view or by an occluder get fresh ids."""
     t0, t1 = _clip(camera, g.a, g.b)
@@ -249,12 +170,12 @@ def _visible_segments(g: _Geometry, camera: Camera, occlusion: Occlusion, step: 
     pa, wa = camera.project(a)
     pb, wb = camera.project(b)
     pa, pb = _onto_border(pa, camera.size), _onto_border(pb, camera.size)
-    owners = g.owners[inside]
-    stats["tested"] = len(inside)
+    nudge = g.nudge[inside]
+    stats["edges_tested"] = len(inside)
 
     def predicate(item, s):  # s: position along the image segment; t: along the world segment
         t = s * wa[item] / (s * wa[item] + (1.0 - s) * wb[item])
-        return occlusion.visible(a[item] + t[:, None] * (b[item] - a[item]), owners[item])
+        return occlusion.visible(a[item] + t[:, None] * (b[item] - a[item]), nudge[item])
 
     speed = np.linalg.norm(pb - pa, axis=1)
     item, s0, s1, at_lo, at_hi = visible_runs(predicate, np.zeros(len(inside)), np.ones(len(inside)), speed,
@@ -269,7 +190,7 @@ def _visible_segments(g: _Geometry, camera: Camera, occlusion: Occlusion, step: 
     keep_b = at_hi & (t1[seg] == 1.0)
     ids[keep_a, 0] = g.ids[seg[keep_a], 0]
     ids[keep_b, 1] = g.ids[seg[keep_b], 1]
-    stats["visible_segments"] = len(item)
+    stats["visible_pieces"] = len(item)
     return seg, ends, ids
 
 
@@ -286,10 +207,11 @@ def _onto_border(p: np.ndarray, size: tuple[int, int]) -> np.ndarray:
 def _visible_arcs(arcs: conics.Ellipses, camera: Camera, occlusion: Occlusion, step: float, stats: dict):
     """Visible runs of the arcs: (arc (R,), θ0 (R,), θ1 (R,)), a run around the closing point of a closed arc
     joined into one."""
-    stats["tested_arcs"] = len(arcs)
+    stats["arcs_tested"] = len(arcs)
     if not len(arcs):
+        stats["visible_arcs"] = 0
         return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
-    owners = np.c_[occlusion.offsets[arcs.shape], np.full(len(arcs), -1)]
+    exempt = np.where(np.isnan(arcs.hider[:, 0, 0]), -1, arcs.shape)
     probe = 256
     k = np.repeat(np.arange(len(arcs)), probe)
     theta = (arcs.start[:, None] + (arcs.stop - arcs.start)[:, None] * np.linspace(0, 1, probe)).ravel()
@@ -299,7 +221,8 @@ def _visible_arcs(arcs: conics.Ellipses, camera: Camera, occlusion: Occlusion, s
 
     def predicate(item, t):
         points = arcs.point(item, t)
-        return occlusion.visible(points, owners[item]) & ~arcs.hidden_by_own_cylinder(item, points, camera.eye)
+        return (occlusion.visible(points, arcs.outward(item, points), exempt[item])
+                & ~arcs.hidden_by_own_cylinder(item, points, camera.eye))
 
     item, t0, t1, at_lo, at_hi = visible_runs(predicate, arcs.start, arcs.stop, speed, step=step,
                                               precision=PRECISION)
@@ -317,7 +240,7 @@ def _visible_arcs(arcs: conics.Ellipses, camera: Camera, occlusion: Occlusion, s
     return item[keep], t0[keep], t1[keep]
 
 
-def _curves(g: _Geometry, camera: Camera, runs, arc_runs, tolerance: float, path) -> Curves:
+def _curves(g: Candidates, camera: Camera, runs, arc_runs, tolerance: float, path) -> Curves:
     """Chains of visible segments fitted with lines and cubics, then the visible arcs as cubics."""
     seg, ends, ids = runs
     length = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1)

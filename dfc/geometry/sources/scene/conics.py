@@ -72,6 +72,12 @@ class Ellipses:
             z = e[:, 2] + s * d[:, 2]
         return has & (s > 0) & (s < 1 - 1e-9) & (z >= 0) & (z <= 1)
 
+    def outward(self, idx: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """Unit directions (N, 3) from the centres of arcs ``idx`` to their points (N, 3): off a sphere (for its
+        contour), out of a disk or a cylinder's end."""
+        d = points - self.centre[idx]
+        return d / np.maximum(np.linalg.norm(d, axis=1), 1e-300)[:, None]
+
     def derivative(self, idx: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """dP/dθ (N, 3) of arcs ``idx`` at ``theta``."""
         c, s = np.cos(theta)[:, None], np.sin(theta)[:, None]
@@ -123,11 +129,12 @@ def disk_rim(to_world: np.ndarray, shape: int, kind: int) -> Ellipses:
 
 
 def cylinder_outline(to_world: np.ndarray, eye: np.ndarray, shape: int, rim_kind: int,
-                     silhouette_kind: int) -> tuple[Ellipses, np.ndarray]:
+                     silhouette_kind: int) -> tuple[Ellipses, np.ndarray, np.ndarray]:
     """The outline of Mitsuba's (open) cylinder, the unit cylinder ``x² + y² = 1, 0 ≤ z ≤ 1`` under ``to_world``.
 
-    returns its two rims, and its silhouette lines (S, 2, 3) float64 (S = 2, or 0 when the eye is inside the
-    infinite cylinder): the rulings where the eye's rays touch it, found in the cylinder's own frame
+    returns its two rims; its silhouette lines (S, 2, 3) float64 (S = 2, or 0 when the eye is inside the
+    infinite cylinder), the rulings where the eye's rays touch it, found in the cylinder's own frame; and their
+    outward unit normals (S, 3)
     """
     to_local = np.linalg.inv(to_world)
     local_eye = to_local[:3, :3] @ eye + to_local[:3, 3]
@@ -135,11 +142,12 @@ def cylinder_outline(to_world: np.ndarray, eye: np.ndarray, shape: int, rim_kind
     centres = [to_world[:3, 3], to_world[:3, 3] + to_world[:3, 2]]
     rims = _full(centres, [to_world[:3, 0]] * 2, [to_world[:3, 1]] * 2, shape, rim_kind, to_local)
     if rho <= 1.0:
-        return rims, np.zeros((0, 2, 3))
+        return rims, np.zeros((0, 2, 3)), np.zeros((0, 3))
     phi = np.arctan2(local_eye[1], local_eye[0]) + np.array([1.0, -1.0]) * np.arccos(1.0 / rho)
     ends = np.stack([np.cos(phi), np.sin(phi)], axis=1)
     local = np.stack([np.c_[ends, np.zeros(2), np.ones(2)], np.c_[ends, np.ones(2), np.ones(2)]], axis=1)
-    return rims, (local @ to_world.T)[..., :3]
+    normal = np.c_[ends, np.zeros(2)] @ to_local[:3, :3]  # normals transform by the inverse transpose
+    return rims, (local @ to_world.T)[..., :3], normal / np.linalg.norm(normal, axis=1, keepdims=True)
 
 
 def _image(camera: Camera, arcs: Ellipses, idx: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
