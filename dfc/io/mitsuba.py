@@ -42,13 +42,16 @@ def check_scene_file(path: str | Path) -> None:
     A diffusion-curve XML file (root ``<curve_set>``, or ``<scene image_width=… image_height=…>``) gets a message
     saying it already is a curves file."""
     path = Path(path)
+    root = None
     try:
-        root = next(el for _, el in ET.iterparse(path, events=("start",)))
+        for event, element in ET.iterparse(path, events=("start", "end")):
+            if root is None:
+                root = element
+            elif event == "end" and element is not root:
+                element.clear()  # the whole file is read for its syntax, without keeping it
     except ET.ParseError as e:
         line, column = e.position
         raise InputError(f"{path}: line {line}, column {column + 1}: not well-formed XML") from None
-    except StopIteration:
-        raise InputError(f"{path}: empty XML file") from None
     if root.tag == "curve_set" or (root.tag == "scene" and {"image_width", "image_height"} & set(root.attrib)):
         raise InputError(f"{path}: this is a diffusion-curve XML file, already a curves file: "
                          "give it to 'dfc mesh' or 'dfc encode --curves' as it is")

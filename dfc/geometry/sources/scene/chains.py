@@ -19,6 +19,13 @@ _CORNER_COS = np.cos(np.radians(45.0))
 """Chains are split where they turn by more than 45° at a point: cubics never round such a corner."""
 _NEWTON = 2
 """Reparametrisation rounds (Newton steps towards the closest curve point) per cubic fit."""
+_SAMPLE_SPACING = 0.25
+"""Cubics are fitted to, and measured at, points this far apart (in the polyline's units) along each segment ..."""
+_SAMPLES_PER_SEGMENT = (4, 256)
+"""... but at least 4 and at most 256 per segment."""
+_CUBIC_MARGIN = 0.9
+"""A cubic is kept when those points are within this fraction of the tolerance: it may stray a little farther
+between them. (A line's distance to its polyline is largest at a polyline point, so lines use the tolerance.)"""
 
 
 def chain(ends: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -100,7 +107,7 @@ def fit_polylines(points: np.ndarray, offsets: np.ndarray, tolerance: float) -> 
         if not len(lo):
             break
         cp, err, worst = _fit_cubics(points, brk, lo, hi)
-        ok = err <= tolerance
+        ok = err <= _CUBIC_MARGIN * tolerance
         done.append((lo[ok], hi[ok], cp[ok]))
         lo, hi, worst = lo[~ok], hi[~ok], worst[~ok]
         quarter = -(-(hi - lo) // 4)
@@ -149,8 +156,8 @@ def _line_error(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarra
 def _fit_cubics(points: np.ndarray, brk: np.ndarray, lo: np.ndarray, hi: np.ndarray):
     """Least-squares cubics with fixed ends and end tangent directions for runs ``lo..hi``.
 
-    The polyline is sampled at its points and segment midpoints (chord-length parameters, improved by Newton
-    steps). End tangents: the neighbouring segment at a break point, else the central difference.
+    The polyline is sampled every ``_SAMPLE_SPACING`` along its segments (chord-length parameters, improved by
+    Newton steps). End tangents: the neighbouring segment at a break point, else the central difference.
     returns control points (R, 4, 2), the largest sample distance (R,), and the point index nearest to it (R,)
     """
     last = len(points) - 1
@@ -158,11 +165,15 @@ def _fit_cubics(points: np.ndarray, brk: np.ndarray, lo: np.ndarray, hi: np.ndar
     before, after = points[np.maximum(lo - 1, 0)], points[np.minimum(hi + 1, last)]
     t1 = _unit(points[lo + 1] - np.where(brk[lo, None], p0, before))
     t2 = _unit(points[hi - 1] - np.where(brk[hi, None], p3, after))
-    count = 2 * (hi - lo) + 1
+    per = np.clip(np.ceil(np.linalg.norm(np.diff(points, axis=0), axis=1) / _SAMPLE_SPACING), *_SAMPLES_PER_SEGMENT)
+    first = np.r_[0, np.cumsum(per)].astype(np.int64)  # first sample of each segment, in a global numbering
+    count = first[hi] - first[lo] + 1
     run, j = _ranges(lo, count)
-    base = lo[run] + j // 2
-    odd = (j % 2 == 1)
-    sample = np.where(odd[:, None], 0.5 * (points[base] + points[np.minimum(base + 1, last)]), points[base])
+    end = j == count[run] - 1  # the run's last point closes its last segment
+    q = first[lo][run] + j
+    segment = np.where(end, hi[run] - 1, np.searchsorted(first, q, side="right") - 1)
+    frac = np.where(end, 1.0, (q - first[segment]) / per[segment])
+    sample = points[segment] + frac[:, None] * (points[segment + 1] - points[segment])
     step = np.linalg.norm(np.diff(sample, axis=0), axis=1)
     step = np.r_[0.0, np.where(run[1:] == run[:-1], step, 0.0)]
     along = np.cumsum(step)
@@ -184,7 +195,8 @@ def _fit_cubics(points: np.ndarray, brk: np.ndarray, lo: np.ndarray, hi: np.ndar
     err = np.maximum.reduceat(dist, starts)
     # index of the worst sample in each run: sort by (run, -dist) and take each run's first
     order = np.lexsort((-dist, run))
-    worst = lo + (j[order[starts]] + 1) // 2
+    pick = order[starts]
+    worst = segment[pick] + (frac[pick] >= 0.5)
     return cp, err, worst
 
 

@@ -38,14 +38,12 @@ class EdgeTable:
     edges : (E, 2) int64 vertex ids, ``a < b``
     faces : (E, 2) int64 the first two adjacent faces, -1 where there is none
     opposite : (E, 2) int64 each adjacent face's third vertex, -1 where there is no face
-    flipped : (E,) bool, the two faces run along the edge in the same direction (inconsistent winding)
     count : (E,) int64 how many faces share the edge (1 boundary, 2 manifold, more non-manifold)
     """
 
     edges: np.ndarray
     faces: np.ndarray
     opposite: np.ndarray
-    flipped: np.ndarray
     count: np.ndarray
 
 
@@ -58,7 +56,7 @@ def edge_table(faces: np.ndarray) -> EdgeTable:
     lo, hi = np.minimum(start, end), np.maximum(start, end)
     key = lo * (int(faces.max(initial=0)) + 1) + hi
     order = np.argsort(key)
-    key, start, third = key[order], start[order], third[order]
+    key, third = key[order], third[order]
     face = keep[order // 3]
     head = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     count = np.diff(np.append(head, len(key)))
@@ -67,8 +65,7 @@ def edge_table(faces: np.ndarray) -> EdgeTable:
     two = count > 1
     adjacent = np.stack([face[head], np.where(two, face[second], -1)], axis=1)
     opposite = np.stack([third[head], np.where(two, third[second], -1)], axis=1)
-    flipped = two & (start[head] == start[second])  # both faces run along the edge the same way
-    return EdgeTable(np.stack([lo, hi], axis=1), adjacent, opposite, flipped, count)
+    return EdgeTable(np.stack([lo, hi], axis=1), adjacent, opposite, count)
 
 
 def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -84,8 +81,8 @@ def feature_kinds(vertices: np.ndarray, table: EdgeTable, eye: np.ndarray, *, cr
     * silhouette: both adjacent faces lie on the same side of the plane through the eye and the edge, i.e. one
       faces the eye and the other faces away (a test that does not depend on the faces' winding);
     * boundary: one adjacent face, or more than two (non-manifold);
-    * crease (with ``creases``): the faces' normals, oriented consistently across the edge, differ by at least
-      ``crease_angle`` degrees.
+    * crease (with ``creases``): the faces' normals differ by at least ``crease_angle`` degrees, both taken as if
+      the faces were wound consistently (``(a, b, c1)`` and ``(b, a, c2)``), whatever their stored winding.
     """
     v = np.asarray(vertices, dtype=np.float64)
     a, b = v[table.edges[:, 0]], v[table.edges[:, 1]]
@@ -98,9 +95,8 @@ def feature_kinds(vertices: np.ndarray, table: EdgeTable, eye: np.ndarray, *, cr
     side2 = np.einsum("ij,ij->i", plane, c2 - eye)
     kind[two[side1 * side2 >= 0]] |= SILHOUETTE
     if creases:
-        # normals of (a, b, c1) and (b, a, c2): consistent when the faces run along the edge in opposite directions
         n1 = _cross(b - a, c1 - a)
-        n2 = _cross(a - b, c2 - b) * np.where(table.flipped[two], -1.0, 1.0)[:, None]
+        n2 = _cross(a - b, c2 - b)
         cos = np.einsum("ij,ij->i", n1, n2)
         norm = np.linalg.norm(n1, axis=1) * np.linalg.norm(n2, axis=1)
         kind[two[(norm > 0) & (cos <= np.cos(np.radians(crease_angle)) * norm)]] |= CREASE
