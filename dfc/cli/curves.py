@@ -43,7 +43,8 @@ preview background(path, options) -> (H, W, 3) display values in [0, 1])."""
 @click.option("--crease-angle", type=click.FloatRange(0, 180), default=30.0, show_default=True,
               help="Scene: mesh edges whose faces turn by at least this many degrees are creases.")
 @click.option("--no-creases", is_flag=True, help="Scene: silhouettes, boundaries and intersections only.")
-@click.option("--no-intersections", is_flag=True, help="Scene: skip the curves where meshes cut through each other.")
+@click.option("--no-intersections", is_flag=True,
+              help="Scene: skip the curves where two meshes cut through each other.")
 @click.option("--tolerance", type=float, default=0.05, show_default=True, callback=positive,
               help="Largest distance (pixels) of the written lines and cubics from the projected mesh edges.")
 @click.option("--step", type=float, default=0.5, show_default=True, callback=positive,

@@ -13,7 +13,7 @@ import numpy as np
 
 from ....io.mitsuba import Camera
 
-__all__ = ["Ellipses", "sphere_contours", "cylinder_outline", "disk_rim", "arcs_to_beziers"]
+__all__ = ["Ellipses", "sphere_contours", "cylinder_outline", "disk_rim", "image_points", "arcs_to_beziers"]
 
 _QUARTER = np.pi / 4
 """Initial pieces span at most this angle (rad), so a full conic starts as at least 8 pieces."""
@@ -150,7 +150,7 @@ def cylinder_outline(to_world: np.ndarray, eye: np.ndarray, shape: int, rim_kind
     return rims, (local @ to_world.T)[..., :3], normal / np.linalg.norm(normal, axis=1, keepdims=True)
 
 
-def _image(camera: Camera, arcs: Ellipses, idx: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def image_points(camera: Camera, arcs: Ellipses, idx: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Image points (N, 2) and their derivatives d/dθ (N, 2) of arcs ``idx`` at ``theta``."""
     h = camera.homogeneous(arcs.point(idx, theta))
     dh = arcs.derivative(idx, theta) @ camera.matrix[:, :3].T
@@ -160,8 +160,8 @@ def _image(camera: Camera, arcs: Ellipses, idx: np.ndarray, theta: np.ndarray) -
 
 def _hermite(camera: Camera, arcs: Ellipses, idx: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cubic Hermite control points (N, 4, 2) matching the image conic's ends and end derivatives over [a, b]."""
-    p0, d0 = _image(camera, arcs, idx, a)
-    p3, d3 = _image(camera, arcs, idx, b)
+    p0, d0 = image_points(camera, arcs, idx, a)
+    p3, d3 = image_points(camera, arcs, idx, b)
     span = ((b - a) / 3.0)[:, None]
     return np.stack([p0, p0 + span * d0, p3 - span * d3, p3], axis=1)
 
@@ -187,7 +187,7 @@ def arcs_to_beziers(camera: Camera, arcs: Ellipses, idx: np.ndarray, a: np.ndarr
     for _ in range(_MAX_HALVINGS):
         cp = _hermite(camera, arcs, idx[run], lo, hi)
         m = len(run)
-        exact, _ = _image(camera, arcs, np.repeat(idx[run], len(s)), (lo[:, None] + (hi - lo)[:, None] * s).ravel())
+        exact, _ = image_points(camera, arcs, np.repeat(idx[run], len(s)), (lo[:, None] + (hi - lo)[:, None] * s).ravel())
         err = np.linalg.norm(bezier.evaluate(cp, np.tile(s, (m, 1))) - exact.reshape(m, len(s), 2), axis=2).max(axis=1)
         ok = err <= tolerance
         done_run.append(run[ok])

@@ -56,9 +56,8 @@ class Occlusion:
 
         self.mi = import_mitsuba()
         self.scene, self.camera = scene, camera
-        self.offsets = np.asarray(offsets, dtype=np.int64)
         self._shape_index = {s.ptr: i for i, s in enumerate(scene.shapes())}  # by the C++ object's address
-        self._offsets, self._meshes = self.offsets.tolist(), np.asarray(meshes).tolist()
+        self._offsets, self._meshes = np.asarray(offsets).tolist(), np.asarray(meshes).tolist()
         self.rays = self.bound_rays = 0
         self.bound = None if sensor is None else self._depth_bound(sensor)
 
