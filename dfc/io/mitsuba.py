@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import ExtraError, InputError
 
-__all__ = ["VARIANT", "Camera", "check_scene_file", "flat_shaded", "import_mitsuba", "load_scene",
+__all__ = ["VARIANT", "Camera", "check_scene_file", "flat_shaded", "import_mitsuba", "load_scene", "ordered_shapes",
            "perspective_sensor", "render_aovs", "render_window", "window_sensor", "write_ply"]
 
 VARIANT = "scalar_rgb"
@@ -80,6 +80,16 @@ def _loaded(scene) -> tuple[str | Path, object]:
 def _one_line(message: str) -> str:
     """A Mitsuba message without its source locations (``[parser.cpp:1718]``), on one line."""
     return " ".join(re.sub(r"\[[\w.]+\.cpp:\d+\]\s*", "", message).split())
+
+
+def ordered_shapes(scene) -> list:
+    """The scene's shapes in an order that does not change from one load to the next (``scene.shapes()`` lists
+    them in a different order each time): by id, type, bounding box and size."""
+    def key(shape):
+        box = shape.bbox()
+        return (shape.id(), shape.class_name(), tuple(box.min), tuple(box.max), shape.primitive_count())
+
+    return sorted(scene.shapes(), key=key)
 
 
 def perspective_sensor(scene, index: int = 0, path: str | Path = "scene"):

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ....errors import InputError
-from ....io.mitsuba import Camera, import_mitsuba
+from ....io.mitsuba import Camera, import_mitsuba, ordered_shapes
 from . import conics
 from .edges import BOUNDARY, INTERSECTION, SILHOUETTE, edge_table, feature_kinds, off_surface, weld
 from .intersections import MeshPart, intersection_segments
@@ -37,7 +37,7 @@ class Candidates:
     """
 
     def __init__(self, scene, camera: Camera, path: str | Path, *, crease_angle: float, creases: bool):
-        shapes = list(scene.shapes())
+        shapes = ordered_shapes(scene)
         self.eye = camera.eye
         self.labels = [_label(s, i) for i, s in enumerate(shapes)]
         self.is_mesh = np.array([s.is_mesh() for s in shapes], dtype=bool)

@@ -46,17 +46,17 @@ class Occlusion:
     """Eye-ray visibility of world points in a loaded Mitsuba scene.
 
     scene : the Mitsuba scene; camera : its ``Camera``; offsets : (S + 1,) int64 first global primitive id of each
-    shape (``offsets[-1]`` = total); meshes : (S,) bool, which shapes are meshes. A hit's *global primitive id* is
+    shape, in ``ordered_shapes`` order (``offsets[-1]`` = total); meshes : (S,) bool, which shapes are meshes. A hit's *global primitive id* is
     ``offsets[shape] + primitive`` for a mesh triangle, ``offsets[shape]`` for an analytic shape. ``rays`` counts
     the rays traced. ``sensor`` given: the depth bound is rendered through it (one ray per pixel, counted).
     """
 
     def __init__(self, scene, camera: Camera, offsets: np.ndarray, meshes: np.ndarray, sensor=None):
-        from ....io.mitsuba import import_mitsuba
+        from ....io.mitsuba import import_mitsuba, ordered_shapes
 
         self.mi = import_mitsuba()
         self.scene, self.camera = scene, camera
-        self._shape_index = {s.ptr: i for i, s in enumerate(scene.shapes())}  # by the C++ object's address
+        self._shape_index = {s.ptr: i for i, s in enumerate(ordered_shapes(scene))}  # by the C++ object's address
         self._offsets, self._meshes = np.asarray(offsets).tolist(), np.asarray(meshes).tolist()
         self.rays = self.bound_rays = 0
         self.bound = None if sensor is None else self._depth_bound(sensor)
