@@ -12,6 +12,7 @@ import click
 
 # command name -> module of dfc.cli exposing a click command called ``command``
 COMMANDS = {
+    "curves": "curves",
     "mesh": "mesh",
     "encode": "encode",
     "decode": "decode",

@@ -11,9 +11,10 @@ from PIL import Image, ImageDraw
 
 from ..io.atomic import atomic_path, write_bytes_atomic
 from . import bezier
+from .curves import Curves
 from .mesh import Mesh
 
-__all__ = ["draw_mesh", "FORMATS"]
+__all__ = ["draw_mesh", "draw_curves", "FORMATS"]
 
 FORMATS = (".png", ".svg")
 _GREY, _DISC, _CURVE, _TINT = (170, 170, 170), (215, 40, 40), (30, 90, 220), (200, 220, 255)
@@ -80,3 +81,21 @@ def _svg(mesh: Mesh, px, width: int, height: int) -> str:
         "</svg>",
         "",
     ])
+
+
+def draw_curves(curves: Curves, path: str | Path, background: np.ndarray | None = None, *, scale: int = 1) -> None:
+    """Draw ``curves`` in red over ``background`` ((H, W, 3) uint8 sRGB covering the curves' domain, or white) to a
+    PNG at ``scale`` × the background's size (the domain's size in its units when there is none), atomically."""
+    x0, y0, x1, y1 = curves.domain
+    if background is None:
+        background = np.full((max(1, round(y1 - y0)), max(1, round(x1 - x0)), 3), 255, np.uint8)
+    height, width = background.shape[:2]
+    image = Image.fromarray(np.ascontiguousarray(background, dtype=np.uint8), "RGB")
+    if scale != 1:
+        image = image.resize((width * scale, height * scale), Image.NEAREST)
+    draw = ImageDraw.Draw(image)
+    factor = np.array([width * scale / (x1 - x0), height * scale / (y1 - y0)])
+    for line in (bezier.flatten(curves.control_points, _CURVE_SAMPLES) - (x0, y0)) * factor:
+        draw.line([tuple(p) for p in line], fill=_DISC, width=max(1, scale // 2))
+    with atomic_path(path) as tmp:
+        image.save(tmp, format="PNG")
