@@ -21,6 +21,7 @@ COMMANDS = {
     "bench": "bench",
     "wos": "wos",
     "solve": "solve",
+    "curves": "curves",
 }
 
 

@@ -22,17 +22,17 @@ __all__ = ["fit_points", "corners"]
 
 _REPARAMETERISE = 8  # Newton passes before a piece that is close to the tolerance is split
 _CLOSE = 4.0  # "close to the tolerance": error below this many tolerances
-_MIN_POINTS = 6  # a piece is never split into parts of fewer points: noise in the points is not shape
 
 
 def fit_points(points, *, tolerance: float, corner_angle: float = 40.0, span: float = 3.0,
-               closed: bool = False) -> tuple[np.ndarray, np.ndarray]:
+               closed: bool = False, min_points: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Lines and cubics through ordered points, the points within ``tolerance`` of the result.
 
     points : (n, 2) float, n ≥ 2, in order along the curve (gaps allowed); an open curve starts at the
         first point and ends at the last
-    tolerance : largest distance from a point to the fitted curve; a piece of fewer than 2 × 6 points is not
-        split further, so noisy points may stay farther
+    tolerance : largest distance from a point to the fitted curve
+    min_points : a miss below 4 tolerances does not split a piece into parts of fewer points than this, so
+        that noise in the points is not taken for shape (such points may then stay up to 4 tolerances away)
     corner_angle : degrees; a sharper turn is a corner
     span : arc length over which tangents are estimated; points farther than this from both neighbours
         are outliers and dropped
@@ -55,7 +55,7 @@ def fit_points(points, *, tolerance: float, corner_angle: float = 40.0, span: fl
     if closed and not k:
         m = _count(p, span)
         tangent = _direction(np.concatenate([p[n - m + 1:], p[:m]]))
-        pieces = _fit(np.concatenate([p, p[:1]]), tangent, -tangent, tolerance, span)
+        pieces = _fit(np.concatenate([p, p[:1]]), tangent, -tangent, tolerance, span, min_points)
     else:
         if closed:  # from corner to corner, round the loop
             segments = [np.concatenate([joints[i][None], p[np.arange(drop_hi[i], drop_lo[(i + 1) % k] + n * (i + 1 == k)) % n],
@@ -70,7 +70,7 @@ def fit_points(points, *, tolerance: float, corner_angle: float = 40.0, span: fl
         pieces = []
         for seg in segments:
             pieces += _fit(seg, _direction(seg[: _count(seg, span)]), _direction(seg[::-1][: _count(seg[::-1], span)]),
-                           tolerance, span)
+                           tolerance, span, min_points)
     degree = np.array([d for d, _ in pieces], dtype=np.int8)
     cp = np.stack([c for _, c in pieces])
     cp[1:, 0] = cp[:-1, 3]  # bit-exact joints
@@ -224,19 +224,21 @@ def _direction(p: np.ndarray) -> np.ndarray:
     return d
 
 
-def _fit(p: np.ndarray, t0: np.ndarray, t1: np.ndarray, tol: float, span: float, depth: int = 0) -> list:
+def _fit(p: np.ndarray, t0: np.ndarray, t1: np.ndarray, tol: float, span: float, min_points: int,
+         depth: int = 0) -> list:
     """Pieces through ``p`` (n, 2) from ``p[0]`` to ``p[-1]`` leaving along ``t0`` and arriving from ``-t1``
     (``t1`` points back into the curve). Returns [(degree, (4, 2) control points), ...]."""
     a, b = p[0], p[-1]
     chord = b - a
     length = np.linalg.norm(chord)
-    if length > 0 and len(p) > 2:
+    line = [(DEGREE_LINE, np.stack([a, a + chord / 3, b - chord / 3, b]))]
+    if len(p) <= 2:
+        return line
+    if length > 0:
         dist = np.abs((p[1:-1] - a) @ np.array([-chord[1], chord[0]])) / length
         along = (p[1:-1] - a) @ chord / length**2
         if dist.max() <= tol and along.min() >= -tol / length and along.max() <= 1 + tol / length:
-            return [(DEGREE_LINE, np.stack([a, a + chord / 3, b - chord / 3, b]))]
-    elif len(p) <= 2:
-        return [(DEGREE_LINE, np.stack([a, a + chord / 3, b - chord / 3, b]))]
+            return line
     u = _chord_parameters(p)
     cp = _least_squares(p, u, t0, t1)
     err, worst = _error(cp, p, u)
@@ -247,13 +249,18 @@ def _fit(p: np.ndarray, t0: np.ndarray, t1: np.ndarray, tol: float, span: float,
             err, worst = _error(cp, p, u)
             if err <= tol:
                 break
-    if err <= tol or len(p) < 2 * _MIN_POINTS or depth > 40:
+    if length == 0:  # a loop back to the start: cut at the farthest point
+        err, worst = np.inf, int(np.argmax(np.linalg.norm(p - a, axis=1)))
+    few = len(p) < 2 * min_points
+    if err <= tol or (few and err <= _CLOSE * tol) or len(p) < 3 or depth > 40:
         return [(DEGREE_CUBIC, cp)]
-    worst = int(np.clip(worst, _MIN_POINTS, len(p) - 1 - _MIN_POINTS))
+    margin = 1 if few else max(1, min_points)
+    worst = int(np.clip(worst, margin, len(p) - 1 - margin))
     lo = max(0, worst - _count(p[worst::-1], span) + 1)
     hi = worst + _count(p[worst:], span)
     tangent = _direction(p[lo:hi])
-    return _fit(p[: worst + 1], t0, -tangent, tol, span, depth + 1) + _fit(p[worst:], tangent, t1, tol, span, depth + 1)
+    return (_fit(p[: worst + 1], t0, -tangent, tol, span, min_points, depth + 1)
+            + _fit(p[worst:], tangent, t1, tol, span, min_points, depth + 1))
 
 
 def _chord_parameters(p: np.ndarray) -> np.ndarray:

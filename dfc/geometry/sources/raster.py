@@ -77,6 +77,7 @@ class RasterSettings:
 
 
 _SPAN = 3.0  # px over which tangents at chain ends and corners are measured
+_MIN_POINTS = 6  # edge points scatter by a few hundredths of a pixel: pieces under 6 points are not split for that
 
 
 def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, **overrides) -> Curves:
@@ -140,7 +141,7 @@ def _max_residual(max_blur: float) -> float:
 
 def _fit(chain: Chain, s: RasterSettings) -> tuple[np.ndarray, np.ndarray]:
     return fit_points(chain.points, tolerance=s.tolerance, corner_angle=s.corner_angle, span=_SPAN,
-                      closed=chain.closed)
+                      closed=chain.closed, min_points=_MIN_POINTS)
 
 
 def _weld(chains: list[Chain], fits: list, s: RasterSettings, domain) -> list:
