@@ -26,11 +26,11 @@ REC709 = np.array([0.2126, 0.7152, 0.0722])
 def perceptual(pixels: np.ndarray, black: float) -> np.ndarray:
     """Perceptual channels of a linear image.
 
-    pixels : (H, W, C) float linear values; black : the level (same units) below which T is linear
-    returns (H, W, K) float64: K = 1 + (2 if C ≥ 3) + (C - 3 if C ≥ 3 else C - 1)
+    pixels : (..., C) float linear values, e.g. (H, W, C); black : the level (same units) below which T is linear
+    returns (..., K) float64: K = C (luminance and two chroma channels in place of the first three when C ≥ 3)
     """
     pixels = np.asarray(pixels, dtype=np.float64)
-    C = pixels.shape[2]
+    C = pixels.shape[-1]
 
     def t(v):
         return np.arcsinh(v / black)
