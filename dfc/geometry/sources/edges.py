@@ -60,8 +60,11 @@ def edge_skeleton(channels: np.ndarray, *, sigma: float, low: float, high: float
     returns skeleton (H, W) bool, one pixel wide, 8-connected; and vertical (H, W) bool, True where the
     strongest channel's smoothed gradient is more horizontal than vertical (the edge runs up-down)
     """
-    from skimage.feature import canny
-    from skimage.morphology import thin
+    try:
+        from skimage.feature import canny
+        from skimage.morphology import thin
+    except ImportError:
+        raise ImportError("finding curves in images needs scikit-image: pip install 'dfc[curves]'") from None
 
     scale = step_response(sigma)
     H, W, K = channels.shape

@@ -107,7 +107,6 @@ def _fit_columns(image: np.ndarray, r: np.ndarray, c: np.ndarray) -> dict:
 def _fit_once(image: np.ndarray, r: np.ndarray, c: np.ndarray) -> dict:
     H, W, C = image.shape
     M = WINDOW
-    n = len(r)
     inside = (r - M >= 0) & (r + M < H) & (c - 1 >= 0) & (c + 1 < W)
     rr, cc = np.where(inside, r, M), np.where(inside, c, 1)
     k = np.arange(-M, M + 1)
