@@ -33,7 +33,8 @@ def fit_points(points, *, tolerance: float, corner_angle: float = 40.0, span: fl
     tolerance : largest distance from a point to the fitted curve
     min_points : a miss below 4 tolerances does not split a piece into parts of fewer points than this, so
         that noise in the points is not taken for shape (such points may then stay up to 4 tolerances away)
-    corner_angle : degrees; a sharper turn is a corner
+    corner_angle : degrees; a sharper turn is a corner (180: none); points within ``span / 2`` of a corner are
+        left out (at an edge's corner they are the least reliable), the rest are fitted
     span : arc length over which tangents are estimated; points farther than this from both neighbours
         are outliers and dropped
     closed : the points go round a loop (the first point follows the last)
@@ -91,7 +92,7 @@ def corners(points, *, corner_angle: float, span: float, tolerance: float,
     the largest within ``span`` is a corner if it is concentrated there: the same comparison ``span`` farther
     out turns less than 1.5 times as much (on a circle it turns twice as much). The corner is where the two
     tangent lines cross, each fitted over the longest straight run (within ``tolerance``) up to 16 times
-    ``span``; when they cross far away (more than ``span`` beyond either side), the middle between the sides.
+    ``span``; when they cross far away (more than ``span`` beyond either side), the point itself (a cusp's tip).
 
     points : (n, 2) float
     returns joints (k, 2) float64 in order along the points; and for each, the points it replaces:
@@ -145,7 +146,7 @@ def corners(points, *, corner_angle: float, span: float, tolerance: float,
         opening = np.radians(180.0 - turn[i])  # the angle between the sides: a sharp tip lies far beyond the points
         reach = span + np.linalg.norm(b - a) / (2.0 * max(np.sin(0.5 * opening), 0.1))
         near = cross is not None and np.linalg.norm(cross - a) <= reach and np.linalg.norm(cross - b) <= reach
-        joints[k] = cross if near else 0.5 * (a + b)
+        joints[k] = cross if near else ext[idx[i]]
     sel = np.array(chosen)
     return joints, b_hi[sel] - off, a_lo[sel] - off
 
