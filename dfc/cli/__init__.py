@@ -12,7 +12,6 @@ import click
 
 # command name -> module of dfc.cli exposing a click command called ``command``
 COMMANDS = {
-    "curves": "curves",
     "mesh": "mesh",
     "encode": "encode",
     "decode": "decode",
@@ -22,6 +21,7 @@ COMMANDS = {
     "bench": "bench",
     "wos": "wos",
     "solve": "solve",
+    "curves": "curves",
 }
 
 

@@ -339,7 +339,7 @@ def test_bad_scenes_give_one_error_line(tmp_path, capsys):
     (tmp_path / "hair.txt").write_text("0 0 0 0.1\n0 1 0 0.1\n")
     cases.append((write_scene(tmp_path, f'<shape type="linearcurve"><string name="filename" value="'
                                         f'{tmp_path / "hair.txt"}"/></shape>', name="curve.xml"), "LinearCurve"))
-    cases.append((scene("picture.png", "not really"), "cannot extract curves"))
+    cases.append((scene("notes.dat", "not really"), "not an input dfc can find curves in"))
     for path, match in cases:
         code, _, err = run(["curves", path, "-o", tmp_path / "out.json"], capsys)
         assert_one_line_error(code, err, match)
@@ -361,7 +361,10 @@ def test_cli_writes_curves_summary_and_preview(tmp_path, capsys):
     assert "wrote" in err
     from PIL import Image
 
+    from dfc.io.mitsuba import flat_shaded
+
     with Image.open(preview) as image:
         assert image.size == (64, 48)
-        red = np.asarray(image.convert("RGB"))
-    assert np.sum((red[..., 0] > 200) & (red[..., 1] < 80)) > 50  # the curves are drawn
+        drawn = np.asarray(image.convert("RGB")).astype(int)
+    picture = np.round(255 * flat_shaded(str(path))).astype(int)  # the preview's background, without curves
+    assert np.sum(np.abs(drawn - picture).max(axis=2) > 60) > 50  # the curves are drawn
