@@ -198,6 +198,8 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
 
 def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings, loss, data_range, match_s,
                 progress) -> tuple[nn.Module, dict]:
+    import zstandard
+
     from .tuning import tune_baseline
 
     tuned = tune_baseline(name, pixels, domain, channels, n_bytes, steps=settings.steps,
@@ -206,8 +208,7 @@ def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings
                           match_seconds=match_s if settings.match_time else None, sweep=settings.sweep,
                           seed=settings.seed, device=settings.device, progress=progress)
     details = {"config": tuned.config, "sweep": tuned.sweep, "train": tuned.train}
-    import zstandard  # what zstd would save on the fp16 parameters
-
+    # what zstd would save on the fp16 parameters
     raw = b"".join(p.detach().cpu().numpy().astype("<f2").tobytes() for p in tuned.model.parameters())
     details["zstd_bytes"] = len(zstandard.ZstdCompressor(level=19).compress(raw))
     return tuned.model, details
@@ -230,7 +231,8 @@ def _fit_pixels(name, pixels, domain, channels, n_bytes, settings: BenchSettings
 
 def _fit_all(pixels, curves, channels, methods, settings: BenchSettings, data_range: float, progress):
     """Every method fitted: (models {method: module}, record {method: bytes, fit_s, points_per_s, details},
-    failures {method: message}, dfc's file or None). dfc runs first: its file's size is the others' budget."""
+    failures {method: message}, dfc's file or None, the others' budget). dfc runs first: its file's size is the
+    others' budget."""
     loss = "relmse" if float(pixels.max()) > 1.0 else "mse"
     models: dict[str, nn.Module] = {}
     record: dict[str, dict] = {}
