@@ -37,7 +37,8 @@ def _budgets(ctx, param, value):
               "and the TanH field, SIREN and MLP baselines, against the finite-difference reference.")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
-              help="Zoom centre X,Y in domain units (repeatable; default for scenes: points on discontinuities).")
+              help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
+              "tips, and in smooth regions, found from the curves).")
 @click.option("-o", "--output", type=click.Path(file_okay=False), help="Directory for results.json, results.md, "
               "contact.png and dfc.dfield (created if missing).")
 @click.option("--zoom", "zooms", type=float, multiple=True, callback=_zooms,
