@@ -1,5 +1,6 @@
-"""``dfc bench``: dfc against equal-size baselines (hash grid, ReLU field, raster) at increasing zoom; with
-``--solve``, against the physics-informed baselines (TanH field, SIREN, MLP) on a diffusion-curve scene."""
+"""``dfc bench``: dfc against equal-size baselines (tuned hash grid and ReLU field, lossless raster, JPEG XL, AVIF,
+WebP, JPEG 2000) at 1× and at increasing zoom, at one budget or (``--rd``) several; with ``--solve``, against the
+physics-informed baselines (TanH field, SIREN, MLP) on a diffusion-curve scene."""
 
 from __future__ import annotations
 
@@ -14,6 +15,18 @@ def _zooms(ctx, param, value):
     return value
 
 
+def _budgets(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        budgets = sorted({int(v) for v in value.split(",") if v.strip()})
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated byte counts, got {value!r}") from None
+    if not budgets or budgets[0] < 1:
+        raise click.BadParameter("byte budgets must be positive")
+    return budgets
+
+
 @click.command()
 @click.argument("input_path", metavar="[INPUT]", required=False, type=click.Path(exists=True, dir_okay=False))
 @click.option("--curves", "curves_path", type=click.Path(exists=True, dir_okay=False),
@@ -24,17 +37,34 @@ def _zooms(ctx, param, value):
               "and the TanH field, SIREN and MLP baselines, against the finite-difference reference.")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
-              help="Zoom centre X,Y in domain units (repeatable; default for scenes: points on discontinuities).")
+              help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
+              "tips, and in smooth regions, found from the curves).")
 @click.option("-o", "--output", type=click.Path(file_okay=False), help="Directory for results.json, results.md, "
               "contact.png and dfc.dfield (created if missing).")
 @click.option("--zoom", "zooms", type=float, multiple=True, callback=_zooms,
               help="Zoom factor (repeatable)  [default: 1, 10, 33, 100].")
-@click.option("--methods", help="Comma-separated methods to run  [default: dfc,hashgrid,relu,raster; with "
-              "--solve: dfc,tanh_field,siren,tanh_mlp].")
+@click.option("--methods", help="Comma-separated methods to run  [default: dfc,hashgrid,relu,raster,jpegxl,avif,"
+              "webp,jpeg2k (webp only for SDR input); with --solve: dfc,tanh_field,siren,tanh_mlp]. The classical "
+              "codecs need the bench extra: pip install 'dfc[bench]'.")
 @click.option("--bytes", "target_bytes", type=click.IntRange(min=1),
               help="Byte budget; with dfc, its file is sized to it (else every method gets the .dfield's size).")
+@click.option("--rd", is_flag=True, help="Rate-distortion sweep: run the comparison at every --budgets and write "
+              "the curves (results.json) and plots of PSNR against bytes (rd.png, rd_probes.png), plus each "
+              "budget's outputs in DIR/budget_<bytes>/.")
+@click.option("--budgets", callback=_budgets, help="Comma-separated byte budgets of --rd  [default: 0.25, 0.5, 1, "
+              "2 and 4 bits per input pixel].")
 @click.option("--steps", type=click.IntRange(min=1), default=1000, show_default=True,
-              help="Optimiser steps of every method.")
+              help="Optimiser steps of every trained method (the neural baselines at least; see --match-time).")
+@click.option("--sweep/--no-sweep", default=True, show_default=True,
+              help="Tune the hash grid and the ReLU field per budget: try each candidate configuration for "
+              "--sweep-steps and train the best at 1x on the input in full.")
+@click.option("--sweep-steps", type=click.IntRange(min=1), help="Steps of each sweep candidate  [default: --steps / 5].")
+@click.option("--match-time/--no-match-time", default=True, show_default=True,
+              help="Train the neural baselines at least as long as dfc's encode took (more steps than --steps "
+              "when theirs are faster).")
+@click.option("--pixel-grid", type=click.IntRange(min=1), default=4, show_default=True,
+              help="The 1x image PSNR renders every method as the mean over a K x K grid of points in each pixel "
+              "(a box filter, as the scenes' rasters are made).")
 @click.option("--batch-size", type=click.IntRange(min=1), help="Samples per step  [default: 16384; with --solve: "
               "1024 interior and 1024 boundary points].")
 @click.option("--size", type=click.IntRange(min=8), help="Scenes: longer side of the raster fitted  "
@@ -48,21 +78,26 @@ def _zooms(ctx, param, value):
 @click.option("--fit-curves-to-image", is_flag=True, help="Scale the curves' domain onto INPUT's [0, W] x [0, H].")
 @click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
 def command(input_path, curves_path, scene, solve_path, list_scenes, probes, output, zooms, methods, target_bytes,
-            steps, batch_size, size, render, spp, max_triangles, seed, device, fit_curves_to_image, quiet):
-    """Compare dfc with other methods at equal file size: fit dfc and every baseline at the .dfield's byte count,
-    render each probe window at each zoom and write the PSNR table (results.json, results.md) and a contact sheet
-    (contact.png) to OUTPUT. (Speed and scale of dfc's own stages: dfc benchmark.)
+            rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp,
+            max_triangles, seed, device, fit_curves_to_image, quiet):
+    """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
+    byte count (tuned neural baselines, a lossless raster, classical codecs at the highest quality that fits),
+    measure each at 1x on the whole image and in a window around each probe at each zoom, and write the PSNR tables
+    (results.json, results.md) and a contact sheet (contact.png) to OUTPUT. With --rd, the same at several budgets,
+    with rate-distortion plots. (Speed and scale of dfc's own stages: dfc benchmark.)
 
     \b
-    dfc bench INPUT --curves CURVES --probe X,Y [--probe ...] -o DIR
+    dfc bench INPUT --curves CURVES [--probe X,Y ...] -o DIR
     dfc bench --scene NAME -o DIR
+    dfc bench --scene NAME --rd [--budgets 2048,4096,...] -o DIR
     dfc bench --solve SCENE -o DIR
     dfc bench --list-scenes
 
-    Scenes are measured against their exact value at every zoom; a user image only at zoom 1 (against
-    itself, rendered at its own resolution) — larger zooms are rendered but have no reference. --solve trains
-    every method on the Laplace equation's loss alone and measures it against a finite-difference solve
-    (--render, --spp and --zoom do not apply).
+    Probes default to points on edges, at junctions and stroke tips, and in smooth regions, found from the curves.
+    Scenes are measured against their exact value at every zoom; a user image only at zoom 1 (against itself,
+    rendered at its own resolution) — larger zooms are rendered but have no reference. --solve trains every method
+    on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
+    --zoom do not apply).
     """
     from ..bench.scenes import SCENES
 
@@ -75,22 +110,30 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     if output is None:
         raise click.UsageError("missing option '-o' / '--output'")
     if solve_path is not None:
-        if curves_path or fit_curves_to_image or probes or zooms or target_bytes:
-            raise click.UsageError("--curves, --fit-curves-to-image, --probe, --zoom and --bytes do not apply to "
-                                   "--solve")
+        if curves_path or fit_curves_to_image or probes or zooms or target_bytes or rd or budgets:
+            raise click.UsageError("--curves, --fit-curves-to-image, --probe, --zoom, --bytes, --rd and --budgets do "
+                                   "not apply to --solve")
         _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet)
         return
     if input_path is not None and curves_path is None:
         raise click.UsageError("INPUT needs --curves")
     if scene is not None and (curves_path or fit_curves_to_image):
         raise click.UsageError("--curves and --fit-curves-to-image apply to INPUT, not to --scene")
-    from ..bench.compare import METHODS, ZOOMS, BenchSettings, markdown_table, run_bench, run_scene, write_outputs
+    if rd and target_bytes:
+        raise click.UsageError("--rd sweeps --budgets; --bytes applies to a single comparison")
+    if budgets and not rd:
+        raise click.UsageError("--budgets applies to --rd")
+    from ..bench.compare import ZOOMS, BenchSettings, markdown_table, run_bench, scene_inputs, write_outputs
 
     settings = BenchSettings(steps=steps, batch_size=batch_size or 1 << 14, size=size, render=render, spp=spp,
-                             zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, METHODS),
-                             target_bytes=target_bytes, max_triangles=max_triangles, seed=seed,
-                             device=check_device(device))
-    settings.check()
+                             zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, None), target_bytes=target_bytes,
+                             max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=sweep,
+                             sweep_steps=sweep_steps, match_time=match_time, pixel_grid=pixel_grid)
+    if rd:
+        from ..bench.rd import require_matplotlib
+
+        require_matplotlib()
+    settings.check(budgeted=rd)
 
     def progress(message: str) -> None:
         if not quiet:
@@ -99,23 +142,33 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     if scene is not None:
         from ..bench.scenes import get_scene
 
-        result = run_scene(get_scene(scene), settings, probes=probes, progress=progress)
+        inputs = scene_inputs(get_scene(scene), settings, probes=probes, progress=progress)
     else:
-        from ..bench.scenes import curve_probes
+        from ..bench.probes import labelled_probes
         from ..codec import check_domain
         from ..geometry.curves import read_curves
         from ..io.image import read_image
 
         image = read_image(input_path)
         curves = check_domain(read_curves(curves_path), image.width, image.height, fit_curves_to_image)
-        result = run_bench(image.pixels, curves, image.channels, probes=probes or curve_probes(curves),
-                           settings=settings, name=input_path, progress=progress)
-    for path in write_outputs(result, output):
+        points, kinds = (probes, None) if probes else labelled_probes(curves)
+        inputs = {"pixels": image.pixels, "curves": curves, "channels": image.channels, "probes": points,
+                  "probe_kinds": kinds, "name": input_path}
+    if rd:
+        from ..bench.rd import default_budgets, rd_markdown, run_rd, write_rd
+
+        h, w = inputs["pixels"].shape[:2]
+        result = run_rd(inputs, budgets or default_budgets(w, h), settings, progress)
+        paths, text = write_rd(result, output), rd_markdown(result.results)
+    else:
+        result = run_bench(**inputs, settings=settings, progress=progress)
+        paths, text = write_outputs(result, output), markdown_table(result.results)
+    for path in paths:
         progress(f"wrote {path}")
-    click.echo(markdown_table(result.results), nl=False)
+    click.echo(text, nl=False)
 
 
-def _methods(value: str | None, default: tuple[str, ...]) -> tuple[str, ...]:
+def _methods(value: str | None, default):
     return default if value is None else tuple(m.strip() for m in value.split(",") if m.strip())
 
 
