@@ -3,9 +3,21 @@
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import click
 
-from .options import POINT, check_device
+from .options import (
+    POINT,
+    check_device,
+    json_option,
+    quiet_option,
+    read_curves_checked,
+    stdout_taken,
+    threads_option,
+    write_json,
+)
 
 
 def _zooms(ctx, param, value):
@@ -46,9 +58,11 @@ def _zooms(ctx, param, value):
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds every fit and the sampling.")
 @click.option("--device", default="cpu", show_default=True, help="torch device (cpu, cuda, cuda:1, ...).")
 @click.option("--fit-curves-to-image", is_flag=True, help="Scale the curves' domain onto INPUT's [0, W] x [0, H].")
-@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+@threads_option
+@json_option
+@quiet_option
 def command(input_path, curves_path, scene, solve_path, list_scenes, probes, output, zooms, methods, target_bytes,
-            steps, batch_size, size, render, spp, max_triangles, seed, device, fit_curves_to_image, quiet):
+            steps, batch_size, size, render, spp, max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc and every baseline at the .dfield's byte count,
     render each probe window at each zoom and write the PSNR table (results.json, results.md) and a contact sheet
     (contact.png) to OUTPUT. (Speed and scale of dfc's own stages: dfc benchmark.)
@@ -62,13 +76,14 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     Scenes are measured against their exact value at every zoom; a user image only at zoom 1 (against
     itself, rendered at its own resolution) — larger zooms are rendered but have no reference. --solve trains
     every method on the Laplace equation's loss alone and measures it against a finite-difference solve
-    (--render, --spp and --zoom do not apply).
+    (--render, --spp and --zoom do not apply). --json also writes results.json's record to a file (- for
+    standard output, the table then going to standard error).
     """
-    from ..bench.scenes import SCENES
+    from ..bench.scenes import SCENES, SUMMARIES
 
     if list_scenes:
-        for name, factory in SCENES.items():
-            click.echo(f"{name:10s} {(factory.__doc__ or '').split(':', 1)[-1].strip().splitlines()[0]}")
+        for name in SCENES:
+            click.echo(f"{name:10s} {SUMMARIES[name]}")
         return
     if sum(v is not None for v in (input_path, scene, solve_path)) != 1:
         raise click.UsageError("give one of INPUT (with --curves), --scene NAME and --solve SCENE")
@@ -78,7 +93,7 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
         if curves_path or fit_curves_to_image or probes or zooms or target_bytes:
             raise click.UsageError("--curves, --fit-curves-to-image, --probe, --zoom and --bytes do not apply to "
                                    "--solve")
-        _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet)
+        _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet)
         return
     if input_path is not None and curves_path is None:
         raise click.UsageError("INPUT needs --curves")
@@ -103,26 +118,33 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     else:
         from ..bench.scenes import curve_probes
         from ..codec import check_domain
-        from ..geometry.curves import read_curves
         from ..io.image import read_image
 
         image = read_image(input_path)
-        curves = check_domain(read_curves(curves_path), image.width, image.height, fit_curves_to_image)
+        curves = check_domain(read_curves_checked(curves_path, quiet), image.width, image.height,
+                              fit_curves_to_image)
         result = run_bench(image.pixels, curves, image.channels, probes=probes or curve_probes(curves),
                            settings=settings, name=input_path, progress=progress)
     for path in write_outputs(result, output):
         progress(f"wrote {path}")
-    click.echo(markdown_table(result.results), nl=False)
+    _finish(markdown_table(result.results), output, json_path)
+
+
+def _finish(table: str, output: str, json_path: str | None) -> None:
+    """Print the table (to standard error when ``--json -`` takes standard output) and copy results.json's record to
+    ``json_path``."""
+    click.echo(table, nl=False, err=stdout_taken(json_path))
+    if json_path:
+        write_json(json_path, json.loads((Path(output) / "results.json").read_text()))
 
 
 def _methods(value: str | None, default: tuple[str, ...]) -> tuple[str, ...]:
     return default if value is None else tuple(m.strip() for m in value.split(",") if m.strip())
 
 
-def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet) -> None:
+def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet) -> None:
     """``dfc bench --solve``: see ``dfc.bench.solve``."""
     from ..bench.solve import SOLVE_METHODS, SolveBenchSettings, markdown_table, run_solve_bench, write_outputs
-    from ..geometry.curves import read_curves
 
     settings = SolveBenchSettings(steps=steps, batch_size=batch_size or 1 << 10, size=size or 256,
                                   methods=_methods(methods, SOLVE_METHODS), max_triangles=max_triangles, seed=seed,
@@ -133,7 +155,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
         if not quiet:
             click.echo(f"bench: {message}", err=True)
 
-    results = run_solve_bench(read_curves(path), settings, name=path, progress=progress)
+    results = run_solve_bench(read_curves_checked(path, quiet), settings, name=path, progress=progress)
     for written in write_outputs(results, output):
         progress(f"wrote {written}")
-    click.echo(markdown_table(results), nl=False)
+    _finish(markdown_table(results), output, json_path)
