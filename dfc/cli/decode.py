@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import sys
 
 import click
 import numpy as np
@@ -11,6 +12,7 @@ import numpy as np
 from .options import (
     SIZE,
     WINDOW,
+    binary_stream,
     check_device,
     check_size,
     default_size,
@@ -61,7 +63,7 @@ def command(input_path, output, fmt, size, window, spp, full_float, t, n_frames,
     fmt = output_format(output, fmt, full_float)
     check_size(size)
     device = check_device(device)
-    model = loads(click.get_binary_stream("stdin").read(), device=device) if input_path == "-" else \
+    model = loads(binary_stream(sys.stdin).read(), device=device) if input_path == "-" else \
         load(input_path, device=device)
     domain = model.field.mesh.domain
     try:

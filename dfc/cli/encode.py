@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from pathlib import Path
 
 import click
@@ -11,6 +12,7 @@ import numpy as np
 
 from ..io.atomic import write_bytes_atomic
 from .options import (
+    binary_stream,
     check_device,
     json_option,
     note,
@@ -149,7 +151,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         else:
             blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
     if output == "-":
-        out = click.get_binary_stream("stdout")
+        sys.stdout.flush()
+        out = binary_stream(sys.stdout)
         out.write(blob)
         out.flush()
     else:

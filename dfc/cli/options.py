@@ -159,6 +159,11 @@ def note(message: str, quiet: bool) -> None:
 
 
 # -- standard input and output -------------------------------------------------------------------------------------
+def binary_stream(stream):
+    """The byte stream under a text stream (``sys.stdin`` / ``sys.stdout``), or the stream itself when it has none."""
+    return getattr(stream, "buffer", stream)
+
+
 @contextlib.contextmanager
 def stdin_file(path: str, name: str = "stdin"):
     """Yield ``path``, or for ``-`` a temporary file holding all of standard input (named ``name``, removed after):
@@ -169,7 +174,7 @@ def stdin_file(path: str, name: str = "stdin"):
     with tempfile.TemporaryDirectory(prefix="dfc-stdin-") as tmp:
         spooled = Path(tmp) / name
         with open(spooled, "wb") as f:
-            shutil.copyfileobj(click.get_binary_stream("stdin"), f)
+            shutil.copyfileobj(binary_stream(sys.stdin), f)
         yield str(spooled)
 
 
@@ -183,7 +188,8 @@ def stdout_file(path: str, suffix: str):
     with tempfile.TemporaryDirectory(prefix="dfc-stdout-") as tmp:
         spooled = os.path.join(tmp, "out" + suffix)
         yield spooled
-        out = click.get_binary_stream("stdout")
+        sys.stdout.flush()
+        out = binary_stream(sys.stdout)
         with open(spooled, "rb") as f:
             shutil.copyfileobj(f, out)
         out.flush()

@@ -56,11 +56,12 @@ def plan_render(model, output: str, size: tuple[int, int], window, *, spp: int, 
     width, height = size
     channels = len(model.channels)
     need = output_bytes(size, channels, fmt, half) * frames
-    directory = tempfile.gettempdir() if output == "-" else (os.path.dirname(os.path.abspath(output)) or ".")
-    free = shutil.disk_usage(directory).free if os.path.isdir(directory) else None
-    if free is not None and need > free:
+    directory = tempfile.gettempdir() if output == "-" else os.path.dirname(os.path.abspath(output))
+    usage = shutil.disk_usage(directory) if os.path.isdir(directory) else None
+    if usage is not None and usage.total > 0 and need > usage.free:  # (pseudo file systems report 0 of 0)
         raise OSError(errno.ENOSPC, f"not enough free disk space for a {width}x{height} {fmt.upper()} output: it "
-                      f"needs up to {_bytes(need)} and {_bytes(free)} are free (try a smaller --size)", directory)
+                      f"needs up to {_bytes(need)} and {_bytes(usage.free)} are free in {directory} (try a smaller "
+                      f"--size)", "standard output" if output == "-" else output)
     if quiet:
         return
     seconds = frames * estimate_seconds(model, size, window, spp=spp, t=t)

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import sys
+
 import click
 
 from .options import (
     POINT,
     SIZE,
+    binary_stream,
     check_device,
     check_size,
     default_size,
@@ -45,7 +48,7 @@ def command(input_path, center, zoom, output, fmt, size, spp, full_float, t, dev
     fmt = output_format(output, fmt, full_float)
     check_size(size)
     device = check_device(device)
-    model = loads(click.get_binary_stream("stdin").read(), device=device) if input_path == "-" else \
+    model = loads(binary_stream(sys.stdin).read(), device=device) if input_path == "-" else \
         load(input_path, device=device)
     domain = model.field.mesh.domain
     if not (domain[0] <= center[0] <= domain[2] and domain[1] <= center[1] <= domain[3]):

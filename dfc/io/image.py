@@ -20,9 +20,9 @@ and data outside the display window is dropped. Multi-part files: the first part
 Damaged EXR files. Measured with the OpenEXR 3.x bindings on the 167 files of the OpenEXR
 project's ``damaged/`` regression set: every one raises a Python exception (RuntimeError,
 ValueError or UnicodeDecodeError) within milliseconds and small memory; none crashes or hangs, so
-files are read in-process. 17 of them make the library print its own messages first (on the process's standard
-error, 2 to 302 lines, and a "Warning: …" line on its standard output): reading runs with file descriptors 1 and 2
-pointed at the null device (``native_output_silenced``), so a damaged file gives only dfc's one error line.
+files are read in-process. 17 of them make the library print its own messages first (2 to 302 lines on the
+process's standard error from C++, and a "Warning: …" line on Python's standard output from the bindings): reading
+runs with all of these silenced (``library_output_silenced``), so a damaged file gives only dfc's one error line.
 The header is read first (``header_only``) so that absurd sizes, deep data and subsampled channels are refused
 before any pixel allocation.
 
@@ -37,6 +37,7 @@ block (zlib stream, filter type 1 "Sub") and IEND. Both read back with OpenEXR /
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import struct
 import sys
@@ -177,10 +178,11 @@ def _check_size(path: Path, width: int, height: int) -> None:
 
 
 @contextlib.contextmanager
-def native_output_silenced():
-    """Point file descriptors 1 and 2 at the null device for the block: the OpenEXR library prints its own messages
-    about damaged files (C++ and C, on the process's standard output and error, not Python's ``sys.stdout`` /
-    ``sys.stderr``) before the bindings raise, and dfc reports the error in one line of its own."""
+def library_output_silenced():
+    """Silence the block's output on standard output and error, at both levels: the OpenEXR library prints its own
+    messages about damaged files from C/C++ (to file descriptors 1 and 2, pointed at the null device here) and from
+    its Python bindings (to ``sys.stdout``, swapped for a discarded buffer), before the bindings raise; dfc reports
+    the error in one line of its own."""
     sys.stdout.flush()
     sys.stderr.flush()
     saved = [os.dup(fd) for fd in (1, 2)]
@@ -188,7 +190,8 @@ def native_output_silenced():
     try:
         for fd in (1, 2):
             os.dup2(null, fd)
-        yield
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield
     finally:
         _flush_c_streams()  # what the library buffered goes to the null device, not to the restored streams
         for fd, copy in zip((1, 2), saved):
@@ -209,7 +212,7 @@ def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
     import OpenEXR
 
     try:
-        with native_output_silenced(), OpenEXR.File(str(path), header_only=True) as f:
+        with library_output_silenced(), OpenEXR.File(str(path), header_only=True) as f:
             header = f.header()
             storage = header.get("type", OpenEXR.scanlineimage)
             (dx0, dy0), (dx1, dy1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
@@ -225,7 +228,7 @@ def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
     if sub:
         raise InputError(f"{path}: subsampled channels {sub} are not supported")
     try:
-        with native_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as f:
+        with library_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as f:
             data = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
     except Exception as e:  # noqa: BLE001 — as above: any failure of the bindings is a damaged file
         raise InputError(f"{path}: damaged OpenEXR file ({type(e).__name__}: {e})") from None
