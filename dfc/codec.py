@@ -114,6 +114,10 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                  fit_curves: bool = False, callback: Callback | None = None):
     """Encode a raster with its discontinuity curves.
 
+    Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
+    (``dfc.rate.image_mesh_size``), and without a byte target its decoder's width follows the number of values
+    (``dfc.rate.decoder_hidden``).
+
     Parameters
     ----------
     image : ``dfc.io.image.Image`` or (H, W, C) float array of linear values covering [0, W] × [0, H]

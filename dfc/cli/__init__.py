@@ -56,8 +56,8 @@ def _terminate(signum, frame):
 OPENMP_ENVIRONMENT = {"OMP_WAIT_POLICY": "PASSIVE"}
 """Set (unless the user set them) before torch is loaded. OpenMP's idle worker threads otherwise spin, waiting
 for the next parallel region: two such programs on the same cores (a batch encoded in parallel, tests beside a
-build, a shared CI runner) take turns spinning instead of working. A 60-step encode of the sample beside another
-encode took 43.2 s with spinning threads and 10.5 s with sleeping ones (README, "Threads")."""
+build, a shared CI runner) take turns spinning instead of working: a 60-step encode of the sample with two threads
+took 43.5 s spinning and 8.3 s sleeping on the busy development machine (README, "Threads")."""
 
 
 def quiet_openmp() -> None:

@@ -19,6 +19,7 @@ from .options import (
     progress_bar,
     quiet_option,
     read_curves_checked,
+    shown,
     stdin_file,
     stdout_taken,
     threads_option,
@@ -171,7 +172,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
 def _summary(output: str, kind: str, report, reference_path, err: bool) -> None:
     """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times."""
     unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
-    lines = [f"wrote {output}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
+    lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
     scale = ("tone-mapped x/(1+x), " if report.tonemapped else "") + f"data range {report.data_range:.4g}"

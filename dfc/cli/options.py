@@ -101,9 +101,10 @@ def progress_bar(total: int, label: str, quiet: bool, *, unit: str = "step"):
 # -- threads ------------------------------------------------------------------------------------------------------
 THREADS_ENV = "DFC_THREADS"
 DEFAULT_THREADS = 1
-"""torch CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on
-the 2-core development machine (README, "Threads"): one thread is within a few per cent of two on a quiet machine
-and several times faster than two beside another busy process."""
+"""torch CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on the
+2-core development machine (README, "Threads"): with idle threads sleeping, one thread is within a few per cent of
+two on the busy shared machine and 1.6× faster beside a program whose threads spin; two are up to 1.4× faster only
+on an idle machine."""
 
 
 def _set_threads(ctx, param, value):
@@ -138,6 +139,11 @@ def write_json(path: str, data: dict) -> None:
         click.echo(text, nl=False)
     else:
         write_bytes_atomic(path, text.encode())
+
+
+def shown(path: str) -> str:
+    """A path as a summary names it: ``-`` is standard output."""
+    return "standard output" if path == "-" else path
 
 
 def stdout_taken(*paths) -> bool:
@@ -215,8 +221,8 @@ def read_curves_checked(path: str, quiet: bool):
     outside = curves_outside(curves)
     if outside:
         names = [curves.names[c] if c < len(curves.names) else f"curve {c}" for c in outside]
-        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+        listed = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
         domain = ", ".join(f"{v:g}" for v in curves.domain)
         warn(f"{len(names)} curve{'s' if len(names) > 1 else ''} entirely outside the domain ({domain}), ignored: "
-             f"{shown}", quiet)
+             f"{listed}", quiet)
     return curves

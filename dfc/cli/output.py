@@ -131,10 +131,6 @@ def _duration(seconds: float) -> str:
     return f"about {int(seconds // 3600)} h {round(seconds % 3600 / 60)} min"
 
 
-def shown(path: str) -> str:
-    """A path as a summary names it: ``-`` is standard output."""
-    return "standard output" if path == "-" else path
-
 
 def check_time(model, t):
     """``t`` for a time-varying file (default its first time), refused for a static one."""

@@ -15,11 +15,12 @@ from .options import (
     default_size,
     json_option,
     quiet_option,
+    shown,
     stdout_taken,
     threads_option,
     write_json,
 )
-from .output import FORMAT_OPTION, check_time, output_format, plan_render, render_to_file, shown
+from .output import FORMAT_OPTION, check_time, output_format, plan_render, render_to_file
 
 
 @click.command()

@@ -277,3 +277,48 @@ def test_atomic_write_errors_name_the_target(tmp_path):
             raise FileNotFoundError(2, "No such file", str(tmp_path / "input.exr"))  # another file's error
     assert e.value.filename == str(tmp_path / "input.exr")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_encode_from_standard_input_to_standard_output(monkeypatch, tmp_path, capsys):
+    _stdin(monkeypatch, (SAMPLES / "sample.exr").read_bytes())
+    stdout = _BinaryStdout()
+    monkeypatch.setattr(sys, "stdout", stdout)
+    with _no_exit():
+        main(["encode", "-", "--curves", str(SAMPLES / "sample.json"), "-o", "-", "--steps", "2", "--batch-size",
+              "256", "--max-triangles", "300", "-q"])
+    monkeypatch.undo()
+    blob = stdout.buffer.getvalue()
+    assert blob[:4] == b"\x89DFL"
+    err = capsys.readouterr().err
+    assert f"wrote standard output: {len(blob)} bytes" in err  # the summary went to stderr
+    (tmp_path / "piped.dfield").write_bytes(blob)
+    code, out, _ = run(["stats", tmp_path / "piped.dfield", "--json"], capsys)
+    assert code == 0 and json.loads(out)["encoder"]["input"] == "image 256x256"
+
+
+def test_sample_set_summary_says_held_out_and_reference(tmp_path, capsys):
+    from dfc.bench.scenes import sample_scene
+    from dfc.io.samples import SampleSet, write_samples
+
+    scene = sample_scene()
+    rng = np.random.default_rng(1)
+    xy = rng.random((4000, 2)) * 256
+    noisy = (scene.value(xy) + rng.normal(0, 0.05, (len(xy), 3))).clip(0, 1).astype(np.float32)
+    write_samples(tmp_path / "s.npz", SampleSet(xy, noisy, (0.0, 0.0, 256.0, 256.0), ["R", "G", "B"]))
+    np.savez(tmp_path / "ref.npz", image=scene.render(32, 32, spp=1).astype(np.float32),
+             domain=np.array([0.0, 0.0, 256.0, 256.0]))
+    code, out, err = run(["encode", tmp_path / "s.npz", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "s.dfield",
+                          "--steps", "20", "--batch-size", "1024", "--reference", tmp_path / "ref.npz", "--json",
+                          tmp_path / "s.json", "-q"], capsys)
+    assert code == 0, err
+    assert "against 400 held-out samples (left out of the fit)" in out
+    assert f"against the reference {tmp_path / 'ref.npz'}" in out
+    record = json.loads((tmp_path / "s.json").read_text())
+    assert record["heldout"] == 400 and record["psnr_reference"] is not None
+    np.savez(tmp_path / "bad.npz", image=np.zeros((4, 4, 3), np.float32), domain=np.array([0.0, 0.0, 1.0, 1.0]))
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "t.dfield",
+                        "--reference", tmp_path / "bad.npz"], capsys)
+    assert_one_line_error(code, err, "domain")
+    code, _, err = run(["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o",
+                        tmp_path / "u.dfield", "--reference", tmp_path / "ref.npz"], capsys)
+    assert_one_line_error(code, err, "--reference applies to sample sets")

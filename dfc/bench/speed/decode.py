@@ -30,7 +30,7 @@ from .field import NEIGHBOUR_OPTION, THREADS_OPTION, conditions
 def _peak_rss_mb(cmd: list[str]) -> float:
     """Run ``cmd`` and return its peak resident memory in MB, polling ``VmHWM`` in /proc (Linux). (A child's
     ``ru_maxrss`` would also count the memory of this process, which it starts as a copy of.)"""
-    proc = subprocess.Popen(cmd)
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
     status, peak = Path(f"/proc/{proc.pid}/status"), 0.0
     while proc.poll() is None:
         try:
@@ -92,7 +92,8 @@ def command(dfield, size, big, steps, repeat, thread_counts, neighbour, json_pat
                 t_render = best_seconds(lambda: render(model, size, size), repeat, cpu)
                 t_mlp = best_seconds(lambda: model.decoder(features), repeat, cpu)
             clock = time.perf_counter()
-            subprocess.run(cmd + ["--size", f"{size}x{size}", "--threads", str(threads)], check=True)
+            subprocess.run(cmd + ["--size", f"{size}x{size}", "--threads", str(threads)], check=True,
+                           stdout=subprocess.DEVNULL)
             t_cli = time.perf_counter() - clock
             figures["runs"].append({"threads": threads, "neighbour": beside, "render_s": t_render, "mlp_s": t_mlp,
                                     "ratio": t_render / t_mlp, "cli_decode_s": t_cli})
