@@ -253,6 +253,13 @@ SCENES: dict[str, Callable[[], AnalyticScene]] = {
     "hdr": hdr_scene,
 }
 """Scene name -> factory of the analytic scenes."""
+SUMMARIES = {
+    "sample": "the shipped sample: 256 × 256 RGB in [0, 1]; a cubic blob, a triangle, a quadratic arch, a stroke",
+    "shapes": "256 × 256 RGB in [0, 1]; a cubic blob holding a circle, a quadratic lens and a star of lines",
+    "strokes": "256 × 256, one channel; three open strokes whose jump of 1 fades out inside the domain",
+    "hdr": "the shapes layout with per-region gains: linear RGB from about 0.05 to 190",
+}
+"""Scene name -> one-line summary (``dfc bench --list-scenes``)."""
 
 
 def get_scene(name: str) -> AnalyticScene:

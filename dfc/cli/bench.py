@@ -4,9 +4,21 @@ physics-informed baselines (TanH field, SIREN, MLP) on a diffusion-curve scene."
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import click
 
-from .options import POINT, check_device
+from .options import (
+    POINT,
+    check_device,
+    json_option,
+    quiet_option,
+    read_curves_checked,
+    stdout_taken,
+    threads_option,
+    write_json,
+)
 
 
 def _zooms(ctx, param, value):
@@ -76,10 +88,12 @@ def _budgets(ctx, param, value):
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds every fit and the sampling.")
 @click.option("--device", default="cpu", show_default=True, help="torch device (cpu, cuda, cuda:1, ...).")
 @click.option("--fit-curves-to-image", is_flag=True, help="Scale the curves' domain onto INPUT's [0, W] x [0, H].")
-@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
+@threads_option
+@json_option
+@quiet_option
 def command(input_path, curves_path, scene, solve_path, list_scenes, probes, output, zooms, methods, target_bytes,
             rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp,
-            max_triangles, seed, device, fit_curves_to_image, quiet):
+            max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
     byte count (tuned neural baselines, a lossless raster, classical codecs at the highest quality that fits),
     measure each at 1x on the whole image and in a window around each probe at each zoom, and write the PSNR tables
@@ -97,13 +111,14 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     Scenes are measured against their exact value at every zoom; a user image only at zoom 1 (against itself,
     rendered at its own resolution) — larger zooms are rendered but have no reference. --solve trains every method
     on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
-    --zoom do not apply).
+    --zoom do not apply). --json also writes results.json's record to a file (- for standard output, the table then
+    going to standard error).
     """
-    from ..bench.scenes import SCENES
+    from ..bench.scenes import SCENES, SUMMARIES
 
     if list_scenes:
-        for name, factory in SCENES.items():
-            click.echo(f"{name:10s} {(factory.__doc__ or '').split(':', 1)[-1].strip().splitlines()[0]}")
+        for name in SCENES:
+            click.echo(f"{name:10s} {SUMMARIES[name]}")
         return
     if sum(v is not None for v in (input_path, scene, solve_path)) != 1:
         raise click.UsageError("give one of INPUT (with --curves), --scene NAME and --solve SCENE")
@@ -113,7 +128,7 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
         if curves_path or fit_curves_to_image or probes or zooms or target_bytes or rd or budgets:
             raise click.UsageError("--curves, --fit-curves-to-image, --probe, --zoom, --bytes, --rd and --budgets do "
                                    "not apply to --solve")
-        _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet)
+        _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet)
         return
     if input_path is not None and curves_path is None:
         raise click.UsageError("INPUT needs --curves")
@@ -146,11 +161,11 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     else:
         from ..bench.probes import labelled_probes
         from ..codec import check_domain
-        from ..geometry.curves import read_curves
         from ..io.image import read_image
 
         image = read_image(input_path)
-        curves = check_domain(read_curves(curves_path), image.width, image.height, fit_curves_to_image)
+        curves = check_domain(read_curves_checked(curves_path, quiet), image.width, image.height,
+                              fit_curves_to_image)
         points, kinds = (probes, None) if probes else labelled_probes(curves)
         inputs = {"pixels": image.pixels, "curves": curves, "channels": image.channels, "probes": points,
                   "probe_kinds": kinds, "name": input_path}
@@ -165,17 +180,24 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
         paths, text = write_outputs(result, output), markdown_table(result.results)
     for path in paths:
         progress(f"wrote {path}")
-    click.echo(text, nl=False)
+    _finish(text, output, json_path)
+
+
+def _finish(table: str, output: str, json_path: str | None) -> None:
+    """Print the table (to standard error when ``--json -`` takes standard output) and copy results.json's record to
+    ``json_path``."""
+    click.echo(table, nl=False, err=stdout_taken(json_path))
+    if json_path:
+        write_json(json_path, json.loads((Path(output) / "results.json").read_text()))
 
 
 def _methods(value: str | None, default):
     return default if value is None else tuple(m.strip() for m in value.split(",") if m.strip())
 
 
-def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet) -> None:
+def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet) -> None:
     """``dfc bench --solve``: see ``dfc.bench.solve``."""
     from ..bench.solve import SOLVE_METHODS, SolveBenchSettings, markdown_table, run_solve_bench, write_outputs
-    from ..geometry.curves import read_curves
 
     settings = SolveBenchSettings(steps=steps, batch_size=batch_size or 1 << 10, size=size or 256,
                                   methods=_methods(methods, SOLVE_METHODS), max_triangles=max_triangles, seed=seed,
@@ -186,7 +208,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
         if not quiet:
             click.echo(f"bench: {message}", err=True)
 
-    results = run_solve_bench(read_curves(path), settings, name=path, progress=progress)
+    results = run_solve_bench(read_curves_checked(path, quiet), settings, name=path, progress=progress)
     for written in write_outputs(results, output):
         progress(f"wrote {written}")
-    click.echo(markdown_table(results), nl=False)
+    _finish(markdown_table(results), output, json_path)

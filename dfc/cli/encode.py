@@ -2,33 +2,49 @@
 
 from __future__ import annotations
 
-import json
+import contextlib
+import os
+import sys
 from pathlib import Path
 
 import click
+import numpy as np
 
-from .options import check_device, progress_bar
-
-SAMPLE_EXTENSIONS = (".npz",)
-"""``.npz`` inputs: a sample set or a frame sequence, told apart by their keys. Images go by their extension;
-anything else is read as a FEM mesh (meshio)."""
+from ..io.atomic import write_bytes_atomic
+from .options import (
+    binary_stream,
+    check_device,
+    json_option,
+    note,
+    progress_bar,
+    quiet_option,
+    read_curves_checked,
+    shown,
+    stdin_file,
+    stdout_taken,
+    threads_option,
+    write_json,
+)
 
 
 def input_kind(paths: tuple[str, ...], times) -> str:
-    """"image", "frames", "samples" or "fem" for the INPUT paths (several paths: images with --times)."""
-    from ..io.frames import npz_kind
-    from ..io.image import EXR_EXTENSIONS, PIL_EXTENSIONS
+    """"image", "frames", "samples" or "fem" for the INPUT paths (several paths: images with --times).
 
-    image_extensions = EXR_EXTENSIONS + PIL_EXTENSIONS
+    Each file is recognised by its content (magic bytes: EXR, PNG, JPEG, zip/npz, VTK, VTU, XDMF, Gmsh; see
+    ``dfc.io.sniff``), else by its extension; a ``.npz`` holds a sample set or a frame sequence, told apart by its
+    keys; anything else is read as a FEM mesh (meshio)."""
+    from ..io.frames import npz_kind
+    from ..io.sniff import IMAGE_KINDS, file_kind
+
+    kinds = [file_kind(p) for p in paths]
     if len(paths) > 1 or times is not None:
-        if not all(p.lower().endswith(image_extensions) for p in paths) or times is None or len(times) != len(paths):
+        if not all(k in IMAGE_KINDS for k in kinds) or times is None or len(times) != len(paths):
             raise click.UsageError("several INPUTs are the frames of a sequence: give images and --times with one "
                                    "time per image")
         return "frames"
-    path = paths[0].lower()
-    if path.endswith(image_extensions):
+    if kinds[0] in IMAGE_KINDS:
         return "image"
-    if path.endswith(SAMPLE_EXTENSIONS):
+    if kinds[0] == "npz":
         return npz_kind(paths[0])
     return "fem"
 
@@ -44,10 +60,11 @@ def _times(ctx, param, value):
 
 @click.command()
 @click.argument("input_paths", metavar="INPUT...", nargs=-1, required=True,
-                type=click.Path(exists=True, dir_okay=False))
-@click.option("--curves", "curves_path", required=True, type=click.Path(exists=True, dir_okay=False),
-              help="Discontinuity curves: SVG, JSON (spec/curves.md) or diffusion-curve XML.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="The .dfield file to write.")
+                type=click.Path(exists=True, dir_okay=False, allow_dash=True))
+@click.option("--curves", "curves_path", required=True, type=click.Path(exists=True, dir_okay=False, allow_dash=True),
+              help="Discontinuity curves: SVG, JSON (spec/curves.md) or diffusion-curve XML (- reads standard input).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, allow_dash=True),
+              help="The .dfield file to write (- for standard output).")
 @click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on the mesh's triangle count.")
 @click.option("--max-area", type=click.FloatRange(min=0, min_open=True), help="Largest triangle area (domain units²).")
 @click.option("--edge-length", type=click.FloatRange(min=0, min_open=True), help="Target edge length (domain units).")
@@ -59,10 +76,11 @@ def _times(ctx, param, value):
               help="Bits per stored feature value.")
 @click.option("--mesh-bits", type=click.IntRange(1, 23), default=20, show_default=True,
               help="Draco quantisation bits of the vertex positions.")
-@click.option("--loss", type=click.Choice(["auto", "mse", "relmse"]), default="auto", show_default=True,
-              help="auto: relative MSE for HDR inputs (values > 1), else MSE.")
+@click.option("--loss", type=click.Choice(["auto", "mse", "relmse", "logmse"]), default="auto", show_default=True,
+              help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
 @click.option("--device", default="cpu", show_default=True, help="torch device for the fit (cpu, cuda, cuda:1, ...).")
+@threads_option
 @click.option("--channels", help="Comma-separated image channels to encode (default: R,G,B[,A] or all).")
 @click.option("--fit-curves-to-image", is_flag=True,
               help="Scale the curves' domain onto the image's [0, W] x [0, H] instead of refusing a mismatch.")
@@ -70,43 +88,55 @@ def _times(ctx, param, value):
 @click.option("--fields", help="FEM input: comma-separated point-data arrays to encode [default: all].")
 @click.option("--fem-sampling", type=click.Choice(["linear", "nearest"]), default="linear", show_default=True,
               help="FEM input: values of the training points inside an element (never across a barrier).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the summary as JSON here.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@click.option("--reference", "reference_path", type=click.Path(exists=True, dir_okay=False),
+              help="Sample sets: exact values on a pixel grid over the domain (.exr, or .npz as dfc wos --reference "
+                   "writes); the summary adds the file's PSNR against them.")
+@json_option
+@quiet_option
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
             dim, feature_bits, mesh_bits, loss, seed, device, channels, fit_curves_to_image, times, fields,
-            fem_sampling, json_path, quiet):
+            fem_sampling, reference_path, json_path, quiet):
     """Encode INPUT with the discontinuity CURVES into OUTPUT. INPUT is an EXR/PNG/JPEG image; a .npz sample set
     or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
-    triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling).
+    triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling). Files
+    are recognised by their content, else by their extension; - reads INPUT from standard input.
 
     The mesh is built first (size knobs: --max-triangles, --max-area, --edge-length or --target-bytes; default
-    about 2,000 triangles plus those the curves force), then a feature field is fitted on it and written. The
-    summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written file, decoded again,
-    against the input at its pixel centres (sample positions, FEM nodes; every frame of a sequence).
+    about 2,000 triangles plus those the curves force, fewer for small inputs), then a feature field is fitted on
+    it and written. The summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written
+    file, decoded again, against the input at its pixel centres (FEM nodes; every frame of a sequence), for HDR
+    images on tone-mapped values x/(1+x); for a sample set against the 10 % of the samples left out of the fit,
+    and against --reference. An existing OUTPUT is replaced, atomically, once the new file is complete.
     """
     from ..codec import EncodeSettings, encode_fem, encode_frames, encode_image, encode_samples
-    from ..geometry.curves import read_curves
-    from ..io.atomic import write_bytes_atomic
     from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
         raise click.UsageError("give at most one of --max-area, --edge-length and --target-bytes")
-    if not output.lower().endswith(".dfield"):
+    if output != "-" and not output.lower().endswith(".dfield"):
         raise click.BadParameter(f"must end in .dfield, got {output!r}", param_hint="'-o' / '--output'")
-    kind = input_kind(input_paths, times)
-    if kind in ("samples", "fem") and (channels or fit_curves_to_image):
-        raise click.UsageError(f"--channels and --fit-curves-to-image apply to images, not {kind} input")
-    if kind == "frames" and len(input_paths) == 1 and channels:
-        raise click.UsageError("--channels applies to images; a frames .npz is encoded with all its channels")
-    if kind != "fem" and (fields or fem_sampling != "linear"):
-        raise click.UsageError("--fields and --fem-sampling apply to FEM input")
-    settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
-                              target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size, dim=dim,
-                              feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
-                              device=check_device(device))
-    curves = read_curves(curves_path)
-    signal = _read_input(kind, input_paths, times, channels.split(",") if channels else None,
-                         fields.split(",") if fields else None)
+    if [*input_paths, curves_path].count("-") > 1:
+        raise click.UsageError("standard input (-) can be read once: give INPUT or --curves as -, not both")
+    with stdin_file("-") if input_paths == ("-",) else contextlib.nullcontext() as spooled:
+        paths = (spooled,) if spooled else input_paths
+        kind = input_kind(paths, times)
+        if kind in ("samples", "fem") and (channels or fit_curves_to_image):
+            raise click.UsageError(f"--channels and --fit-curves-to-image apply to images, not {kind} input")
+        if kind == "frames" and len(paths) == 1 and channels:
+            raise click.UsageError("--channels applies to images; a frames .npz is encoded with all its channels")
+        if kind != "fem" and (fields or fem_sampling != "linear"):
+            raise click.UsageError("--fields and --fem-sampling apply to FEM input")
+        if kind != "samples" and reference_path:
+            raise click.UsageError(f"--reference applies to sample sets, not {kind} input")
+        settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
+                                  target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size,
+                                  dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
+                                  device=check_device(device))
+        curves = read_curves_checked(curves_path, quiet)
+        signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
+                             fields.split(",") if fields else None)
+        input_bytes = sum(os.path.getsize(p) for p in paths)
+    reference = _read_reference(reference_path, curves.domain) if reference_path else None
     with progress_bar(settings.steps, "fit", quiet) as bar:
         def callback(step, loss_value, psnr):
             bar.update(1)
@@ -114,26 +144,63 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
                 bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
 
         if kind == "samples":
-            blob, report = encode_samples(signal, curves, settings, callback=callback)
+            blob, report = encode_samples(signal, curves, settings, reference=reference, callback=callback)
         elif kind == "fem":
             blob, report = encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
         elif kind == "frames":
             blob, report = encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
         else:
             blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
-    write_bytes_atomic(output, blob)
-    unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
-    click.echo(f"wrote {output}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}")
-    for name, size in report.chunk_bytes.items():
-        click.echo(f"  {name}  {size:>10} bytes")
-    click.echo(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
-    click.echo(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB (data range {report.data_range:.4g})")
-    click.echo("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in report.seconds.items()))
+    if output == "-":
+        sys.stdout.flush()
+        out = binary_stream(sys.stdout)
+        out.write(blob)
+        out.flush()
+    else:
+        write_bytes_atomic(output, blob)
+    _summary(output, kind, report, reference_path, stdout_taken(output, json_path))
+    if report.total_bytes > input_bytes:
+        note(f"the file ({report.total_bytes} bytes) is larger than the input ({input_bytes} bytes): on an input this "
+             f"small the header and decoder weigh more than the data", quiet)
     if json_path:
         from dataclasses import asdict
 
-        write_bytes_atomic(json_path, (json.dumps({"output": str(Path(output)), **asdict(report)}, indent=2)
-                                       + "\n").encode())
+        write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
+                               **asdict(report)})
+
+
+def _summary(output: str, kind: str, report, reference_path, err: bool) -> None:
+    """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times."""
+    unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
+    lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
+    lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
+    lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
+    scale = ("tone-mapped x/(1+x), " if report.tonemapped else "") + f"data range {report.data_range:.4g}"
+    if kind == "samples" and report.heldout:
+        lines.append(f"PSNR of the decoded file against {report.heldout} held-out samples (left out of the fit): "
+                     f"{report.psnr:.2f} dB ({scale})")
+    elif kind == "samples":
+        lines.append(f"PSNR of the decoded file against the samples it was fitted to (too few to hold some out): "
+                     f"{report.psnr:.2f} dB ({scale})")
+    else:
+        lines.append(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB ({scale})")
+    if report.psnr_reference is not None:
+        lines.append(f"PSNR of the decoded file against the reference {reference_path}: {report.psnr_reference:.2f} dB "
+                     f"({scale})")
+    lines.append("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in report.seconds.items()))
+    for line in lines:
+        click.echo(line, err=err)
+
+
+def _read_reference(path: str, domain):
+    """(H, W, C) float32 exact values of a ``--reference`` file over ``domain`` (``dfc.io.samples.read_reference``)."""
+    from ..errors import InputError
+    from ..io.samples import read_reference
+
+    pixels, ref_domain = read_reference(path)
+    if ref_domain is not None and not np.allclose(ref_domain, domain, rtol=1e-9, atol=0):
+        raise InputError(f"{path}: the reference's domain {tuple(ref_domain)} differs from the curves' {tuple(domain)}")
+    return pixels
 
 
 def _read_input(kind: str, paths: tuple[str, ...], times, channels, fields):

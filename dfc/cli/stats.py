@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 import click
+
+from .options import quiet_option, stdin_file, write_json
 
 
 def file_stats(path) -> dict:
@@ -37,15 +37,21 @@ def file_stats(path) -> dict:
 
 
 @click.command()
-@click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the statistics as one JSON object.")
-def command(input_path, as_json):
-    """Print the mesh, parameter and byte statistics of IN: triangles, vertices, discontinuous vertices, curved
-    triangles, feature and MLP parameters, bytes per chunk, bits per pixel of the encoded input, versions."""
-    s = file_stats(input_path)
-    if as_json:
-        click.echo(json.dumps(s, indent=2))
-        return
+@click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False, allow_dash=True))
+@click.option("--json", "json_path", is_flag=False, flag_value="-", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Write the statistics as one JSON object to this file, or with no file (or -) to standard output "
+                   "instead of the table.")
+@quiet_option
+def command(input_path, json_path, quiet):
+    """Print the mesh, parameter and byte statistics of IN (- reads standard input): triangles, vertices,
+    discontinuous vertices, curved triangles, feature and MLP parameters, bytes per chunk, bits per pixel of the
+    encoded input, versions."""
+    with stdin_file(input_path, "stdin.dfield") as path:
+        s = file_stats(path)
+    if json_path:
+        write_json(json_path, s)
+        if json_path == "-":
+            return
     m, p = s["mesh"], s["parameters"]
     rows = [
         ("file", f"{s['file_bytes']} bytes, container {s['container_version']}, content {s['content_version']}"),

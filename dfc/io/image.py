@@ -20,8 +20,11 @@ and data outside the display window is dropped. Multi-part files: the first part
 Damaged EXR files. Measured with the OpenEXR 3.x bindings on the 167 files of the OpenEXR
 project's ``damaged/`` regression set: every one raises a Python exception (RuntimeError,
 ValueError or UnicodeDecodeError) within milliseconds and small memory; none crashes or hangs, so
-files are read in-process. The header is read first (``header_only``) so that absurd sizes,
-deep data and subsampled channels are refused before any pixel allocation.
+files are read in-process. 17 of them make the library print its own messages first (2 to 302 lines on the
+process's standard error from C++, and a "Warning: …" line on Python's standard output from the bindings): reading
+runs with all of these silenced (``library_output_silenced``), so a damaged file gives only dfc's one error line.
+The header is read first (``header_only``) so that absurd sizes, deep data and subsampled channels are refused
+before any pixel allocation.
 
 Streaming writers. ``ExrBlockWriter`` and ``PngBlockWriter`` take row blocks in order and keep
 only one block in memory, for outputs too large to hold (16384² RGB float32 is 3 GiB). The EXR
@@ -34,7 +37,10 @@ block (zlib stream, filter type 1 "Sub") and IEND. Both read back with OpenEXR /
 from __future__ import annotations
 
 import contextlib
+import io
+import os
 import struct
+import sys
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -121,7 +127,7 @@ def display8(pixels: np.ndarray, hdr: bool) -> np.ndarray:
 
 # -- reading --------------------------------------------------------------------------------------
 def read_image(path, channels: list[str] | None = None) -> Image:
-    """Read an EXR, PNG or JPEG file (by extension) into linear float32.
+    """Read an EXR, PNG or JPEG file (told by its content, else its extension: ``dfc.io.sniff``) into linear float32.
 
     Parameters
     ----------
@@ -132,19 +138,20 @@ def read_image(path, channels: list[str] | None = None) -> Image:
     Raises
     ------
     InputError
-        Missing, unreadable or damaged file; unsupported extension, data type or layout; width or
+        Missing, unreadable or damaged file; unsupported format, data type or layout; width or
         height above ``MAX_IMAGE_SIDE`` or area above ``MAX_IMAGE_PIXELS``; a requested channel
         absent; NaN or infinite pixels (the message gives their count and the first location).
     """
+    from .sniff import IMAGE_KINDS, file_kind
+
     path = Path(path)
-    ext = path.suffix.lower()
-    if ext not in EXR_EXTENSIONS + PIL_EXTENSIONS:
-        raise InputError(
-            f"{path}: unsupported image extension {ext!r}; expected one of {', '.join(EXR_EXTENSIONS + PIL_EXTENSIONS)}"
-        )
     if not path.is_file():
         raise InputError(f"{path}: no such image file")
-    planes, names, hdr = _read_exr(path) if ext in EXR_EXTENSIONS else _read_pil(path)
+    kind = file_kind(path)
+    if kind not in IMAGE_KINDS:
+        raise InputError(f"{path}: unsupported image: the content is not EXR, PNG or JPEG, nor is the extension "
+                         f"{path.suffix.lower()!r} one of {', '.join(EXR_EXTENSIONS + PIL_EXTENSIONS)}")
+    planes, names, hdr = _read_exr(path) if kind == "exr" else _read_pil(path)
     if channels is None:
         want = ["R", "G", "B"] + (["A"] if "A" in names else []) if {"R", "G", "B"} <= set(names) else names
     else:
@@ -170,11 +177,42 @@ def _check_size(path: Path, width: int, height: int) -> None:
         )
 
 
+@contextlib.contextmanager
+def library_output_silenced():
+    """Silence the block's output on standard output and error, at both levels: the OpenEXR library prints its own
+    messages about damaged files from C/C++ (to file descriptors 1 and 2, pointed at the null device here) and from
+    its Python bindings (to ``sys.stdout``, swapped for a discarded buffer), before the bindings raise; dfc reports
+    the error in one line of its own."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in (1, 2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd in (1, 2):
+            os.dup2(null, fd)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield
+    finally:
+        _flush_c_streams()  # what the library buffered goes to the null device, not to the restored streams
+        for fd, copy in zip((1, 2), saved):
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(null)
+
+
+def _flush_c_streams() -> None:
+    """``fflush(NULL)``: flush the C library's output buffers (C++ streams synchronised with stdio write to them)."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError, TypeError):
+        ctypes.CDLL(None).fflush(None)
+
+
 def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
     import OpenEXR
 
     try:
-        with OpenEXR.File(str(path), header_only=True) as f:
+        with library_output_silenced(), OpenEXR.File(str(path), header_only=True) as f:
             header = f.header()
             storage = header.get("type", OpenEXR.scanlineimage)
             (dx0, dy0), (dx1, dy1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
@@ -190,7 +228,7 @@ def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
     if sub:
         raise InputError(f"{path}: subsampled channels {sub} are not supported")
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
+        with library_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as f:
             data = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
     except Exception as e:  # noqa: BLE001 — as above: any failure of the bindings is a damaged file
         raise InputError(f"{path}: damaged OpenEXR file ({type(e).__name__}: {e})") from None

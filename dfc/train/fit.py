@@ -15,7 +15,7 @@ from ..errors import InputError
 from ..field.model import FieldModel
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
-from ..metrics import data_range as signal_range
+from ..metrics import quality_scale
 from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
@@ -37,6 +37,7 @@ def fit(
     feature_bits: int = 8,
     data_range: float = 1.0,
     final_lr: float | None = None,
+    tonemap: bool = False,
 ) -> dict:
     """Train ``model`` in place on batches from a data sampler (``dfc.train.loop.train`` with ``DataLoss``).
 
@@ -47,10 +48,10 @@ def fit(
         (``dfc.train.samplers``; ``extra`` as ``DataLoss`` takes it)
     steps : number of optimiser steps
     lr, betas : Adam settings (DESIGN §6: 1e-2, (0.9, 0.99))
-    loss : {"mse", "relmse"}, see ``loss_value``
+    loss : {"mse", "relmse", "logmse"}, see ``loss_value``
     seed : seeds the CPU generator handed to the sampler
     callback : called after each step as ``callback(step, loss, psnr)``; psnr is of the batch, in dB
-        with ``data_range`` (0-dim tensors)
+        with ``data_range``, of tone-mapped values with ``tonemap`` (0-dim tensors; ``dfc.metrics.quality_scale``)
     qat_steps : the last ``qat_steps`` steps run with ``model.quantization = {"feature_bits":
         feature_bits}`` (quantised features, fp16 decoder weights), which stays set on return so the
         model evaluates as the written file will decode
@@ -61,7 +62,7 @@ def fit(
     dict with ``loss`` and ``psnr``: lists of floats, one per step
     """
     schedule = Schedule(steps, lr=lr, final_lr=final_lr, betas=betas, qat_steps=qat_steps, feature_bits=feature_bits)
-    return train(model, DataLoss(loss, data_range), sampler, schedule, seed=seed, callback=callback)
+    return train(model, DataLoss(loss, data_range, tonemap), sampler, schedule, seed=seed, callback=callback)
 
 
 DEFAULT_STEPS = 1000
@@ -94,6 +95,7 @@ def fit_image(
     final_lr: float | None = 1e-3,
     mixed_pixels: str = "drop",
     data_range: float | None = None,
+    tonemap: bool | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster covering ``mesh.domain``.
@@ -106,7 +108,7 @@ def fit_image(
     batch_size : samples per step (stratified, see ``image_sampler``)
     dim : feature channels
     seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
-    loss : {"auto", "mse", "relmse"}; "auto" is "relmse" for HDR images (any value > 1), else "mse"
+    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (any value > 1), else "mse"
     qat_steps : quantisation-aware final steps (default ``DEFAULT_QAT_FRACTION`` of ``steps``)
     feature_bits : bits of the features during those steps (as the file will store them)
     callback : ``callback(step, loss, batch_psnr)`` after each step
@@ -116,7 +118,8 @@ def fit_image(
         (``edge_pixels``): their box-filtered blend of both sides would otherwise pull the field's
         values near every edge towards the blend, visible as a soft band at zoom. Ignored when it
         would leave out more than ``MAX_DROPPED_FRACTION`` of the pixels.
-    data_range : of the batch PSNR the callback sees (default ``dfc.metrics.data_range`` of the image)
+    data_range, tonemap : the scale of the batch PSNR the callback sees (default: ``dfc.metrics.quality_scale`` of
+        the image, the scale ``dfc.codec`` reports the file's PSNR on)
     **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform; the transform
         defaults to "log" for HDR images whose values are all > -1, else "identity")
 
@@ -130,7 +133,8 @@ def fit_image(
     if channels is None:
         channels = getattr(image, "channels", None) or default_channels(pixels.shape[2])
     values = pixels.reshape(-1, pixels.shape[2])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw)
+    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
+                            model_kw)
     field = model.field
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
@@ -147,21 +151,22 @@ def fit_image(
     return model
 
 
-def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw,
+def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw,
                times=None):
     """A fresh ``FieldModel`` for targets ``values`` (M, C) and the ``fit`` settings derived from them
     (one feature slice per entry of ``times`` when given).
 
-    HDR targets (some value > 1) default to the relative MSE and, when every value is > -1, to the ``log`` value
+    HDR targets (some value > 1) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
     transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
-    output bias starts at the (transformed) mean of the targets. ``data_range`` None means the colours' range
-    (``dfc.metrics.data_range``). Returns (model, dict of ``fit`` keywords: steps, qat_steps, loss, data_range).
+    output bias starts at the mean of the transformed targets. ``scale`` is (data_range, tonemap) of the progress
+    PSNR, each None for ``dfc.metrics.quality_scale`` of the targets. Returns (model, dict of ``fit`` keywords:
+    steps, qat_steps, loss, data_range, tonemap).
     """
     from ..field.feature_field import FeatureField
 
     hdr = float(values.max()) > 1.0
     if loss == "auto":
-        loss = "relmse" if hdr else "mse"
+        loss = "logmse" if hdr else "mse"
     if hdr and float(values.min()) > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps
@@ -170,12 +175,18 @@ def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, 
     n_slices = 1 if times is None else len(times)
     field = FeatureField(mesh, dim=dim, seed=seed, n_slices=n_slices, times=times, device=device)
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
-    mean = torch.from_numpy(values.mean(axis=0, dtype=np.float64))
-    with torch.no_grad():  # start at the mean value: HDR values are far from the MLP's initial output
-        out_bias = model.decoder.linears()[-1].bias
-        out_bias.copy_(torch.log1p(mean.clamp_min(0)) if model.transform == "log" else mean)
-    data_range = signal_range(values) if data_range is None else data_range
-    return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range}
+    # start at the mean of the decoder's own output space: log1p of each value for the log transform (the mean of
+    # the logs, not the log of the mean, which bright pixels pull far above most of the image)
+    out = np.log1p(np.maximum(values, 0.0)) if model.transform == "log" else values
+    mean = torch.from_numpy(out.mean(axis=0, dtype=np.float64))
+    with torch.no_grad():
+        model.decoder.linears()[-1].bias.copy_(mean)
+    default = quality_scale(values)
+    data_range, tonemap = scale
+    data_range = default.data_range if data_range is None else data_range
+    tonemap = default.tonemap if tonemap is None else tonemap
+    return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range,
+                   "tonemap": tonemap}
 
 
 SAMPLES_LR = 5e-3
@@ -202,6 +213,7 @@ def fit_samples(
     lr: float = SAMPLES_LR,
     final_lr: float | None = SAMPLES_FINAL_LR,
     data_range: float | None = None,
+    tonemap: bool | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a sample set (noisy values at scattered, possibly repeated points).
@@ -212,10 +224,10 @@ def fit_samples(
     mesh : dfc.geometry.mesh.Mesh
     steps : optimiser steps (default ``DEFAULT_STEPS``)
     batch_size : samples per step (shuffled epochs, see ``point_sampler``)
-    dim, seed, qat_steps, feature_bits, callback, data_range, **model_kw : as in ``fit_image``
+    dim, seed, qat_steps, feature_bits, callback, data_range, tonemap, **model_kw : as in ``fit_image``
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (lower than ``fit_image``'s, see
         ``SAMPLES_LR``)
-    loss : {"auto", "mse", "relmse"}; "auto" is "relmse" when some value is > 1 (HDR), else "mse"
+    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" when some value is > 1 (HDR), else "mse"
     channels : output channel names (default: the sample set's, else ``dfc.io.samples.default_channels``)
 
     Returns
@@ -234,7 +246,8 @@ def fit_samples(
     values = samples.values
     if channels is None:
         channels = samples.channels or default_channels(values.shape[1])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw)
+    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
+                            model_kw)
     cached = len(xy) <= MAX_CACHED_SAMPLES
     sampler = point_sampler(xy, values, batch_size, device=device, query=model.field.query if cached else None)
     fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
@@ -258,6 +271,7 @@ def fit_frames(
     lr: float = 1e-2,
     final_lr: float | None = 1e-3,
     data_range: float | None = None,
+    tonemap: bool | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a time-sliced ``FieldModel`` on ``mesh`` to a frame sequence (``dfc.io.frames.FrameSequence``) covering
@@ -274,8 +288,8 @@ def fit_frames(
     if channels is None:
         channels = sequence.channels or default_channels(frames.shape[3])
     values = frames.reshape(-1, frames.shape[3])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw,
-                            times=sequence.times)
+    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
+                            model_kw, times=sequence.times)
     exclude = edge_pixels(mesh, *frames.shape[1:3])
     sampler = frame_sampler(frames, sequence.times, mesh.domain, batch_size, device=device,
                             exclude=exclude if exclude.mean() <= MAX_DROPPED_FRACTION else None)

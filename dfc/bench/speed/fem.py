@@ -17,13 +17,13 @@ A codec that leaks blends the two sides near the barrier: its error there approa
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import click
 import numpy as np
 
+from ...cli.options import quiet_option, stdout_taken, write_json
 from ...io.atomic import write_bytes_atomic
 
 SIDE_POINTS = 200
@@ -75,9 +75,12 @@ def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tu
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also keep the .dfield here.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Also write the figures to this JSON file (- for standard output; the text then goes to "
+                   "standard error).")
+@quiet_option
 def command(solution_path, curves_path, fields, fem_sampling, max_triangles, steps, hash_steps, batch_size, offset,
-            n_interior, threads, seed, output, json_path):
+            n_interior, threads, seed, output, json_path, quiet):
     """Bytes, PSNR and leakage across the barriers of dfc and an equal-size hash grid on a FEM solution."""
     import torch
 
@@ -90,18 +93,20 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     from ..baselines import fit_baseline
     from ..baselines.hashgrid import HashGrid
 
+    text_err = stdout_taken(json_path)
     if threads is not None:
         torch.set_num_threads(threads)
     solution = read_fem(solution_path, fields.split(",") if fields else None)
     curves = fem_curves(solution, read_curves(curves_path))
     in_bytes = Path(solution_path).stat().st_size
     click.echo(f"{solution_path}: {in_bytes} bytes, {len(solution.points)} nodes, {len(solution.triangles)} "
-               f"triangles, channels {', '.join(solution.channels)}")
+               f"triangles, channels {', '.join(solution.channels)}", err=text_err)
     settings = EncodeSettings(max_triangles=max_triangles, steps=steps, batch_size=batch_size, seed=seed)
     clock = time.perf_counter()
     every = max(1, steps // 10)
     blob, report = encode_fem(solution, curves, settings, sampling=fem_sampling, callback=lambda s, loss, p: (
-        click.echo(f"  dfc step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True) if (s + 1) % every == 0 else None))
+        click.echo(f"  dfc step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True)
+        if not quiet and (s + 1) % every == 0 else None))
     dfc_s = time.perf_counter() - clock
     if output:
         write_bytes_atomic(output, blob)
@@ -112,7 +117,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
         dfc_held = psnr(held_truth, model(torch.from_numpy(held_xy)).numpy(), data_range=report.data_range)
     click.echo(f"dfc: {len(blob)} bytes ({in_bytes / len(blob):.1f}x smaller), PSNR {report.psnr:.2f} dB against the "
                f"nodal values (data range {report.data_range:.4g}), {dfc_held:.2f} dB held out at {len(held_xy)} "
-               f"element centroids; {report.n_triangles} triangles, {dfc_s:.0f} s")
+               f"element centroids; {report.n_triangles} triangles, {dfc_s:.0f} s", err=text_err)
 
     hash_steps = hash_steps or steps
     clock = time.perf_counter()
@@ -124,7 +129,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     every = max(1, hash_steps // 10)
     fit_baseline(grid, point_sampler(xy, values, batch_size), hash_steps, seed=seed, callback=lambda s, loss, p: (
         click.echo(f"  hash grid step {s + 1}/{hash_steps}, batch PSNR {p:.2f} dB", err=True)
-        if (s + 1) % every == 0 else None))
+        if not quiet and (s + 1) % every == 0 else None))
     hash_s = time.perf_counter() - clock
     nodes = np.unique(solution.triangles)
     node_xy = torch.from_numpy(node_points(solution)[0])
@@ -132,7 +137,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
         grid_psnr = psnr(solution.values[nodes], grid(node_xy).numpy(), data_range=report.data_range)
         grid_held = psnr(held_truth, grid(torch.from_numpy(held_xy)).numpy(), data_range=report.data_range)
     click.echo(f"hash grid: {grid.stored_bytes()} bytes, PSNR {grid_psnr:.2f} dB against the nodal values, "
-               f"{grid_held:.2f} dB held out; {hash_steps} steps, {hash_s:.0f} s")
+               f"{grid_held:.2f} dB held out; {hash_steps} steps, {hash_s:.0f} s", err=text_err)
 
     left, right = side_points(barrier_segments(curves), offset * extent)
     sides = (("left", left), ("right", right))
@@ -140,7 +145,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     jump = float(np.abs(truth["left"] - truth["right"]).mean())
     leak: dict = {"offset": offset * extent, "points_per_side": len(left), "mean_jump": jump}
     click.echo(f"leakage at {offset * extent:.3g} from the barrier ({len(left)} points per side), mean |jump| of the "
-               f"FEM solution across it {jump:.4g}; absolute error (mean / max):")
+               f"FEM solution across it {jump:.4g}; absolute error (mean / max):", err=text_err)
     for name, m in (("dfc", model), ("hash grid", grid)):
         row = {}
         with torch.no_grad():
@@ -149,7 +154,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
                 row[side] = {"mean": float(err.mean()), "max": float(err.max())}
         leak[name] = row
         click.echo(f"  {name:<10} left {row['left']['mean']:.4g} / {row['left']['max']:.4g}   "
-                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}")
+                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}", err=text_err)
     if json_path:
         figures = {"solution": str(solution_path), "solution_bytes": in_bytes, "nodes": len(solution.points),
                    "fem_triangles": len(solution.triangles), "dfield_bytes": len(blob), "ratio": in_bytes / len(blob),
@@ -157,4 +162,4 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
                    "data_range": report.data_range, "dfc_triangles": report.n_triangles,
                    "dfc_steps": steps, "dfc_s": dfc_s, "hash_bytes": grid.stored_bytes(), "hash_psnr": grid_psnr,
                    "hash_psnr_held_out": grid_held, "hash_steps": hash_steps, "hash_s": hash_s, "leakage": leak}
-        write_bytes_atomic(json_path, (json.dumps(figures, indent=2) + "\n").encode())
+        write_json(json_path, figures)

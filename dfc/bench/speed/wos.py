@@ -38,13 +38,12 @@ pixel cut by a discontinuity, where it blends both sides. The MSE over all pixel
 
 from __future__ import annotations
 
-import json
 import time
 
 import click
 import numpy as np
 
-from ...io.atomic import write_bytes_atomic
+from ...cli.options import quiet_option, stdout_taken, write_json
 
 
 def _spp_list(ctx, param, value):
@@ -94,10 +93,12 @@ def _odd(ctx, param, value):
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the walks and the fits.")
 @click.option("--encode", "measure_encode", is_flag=True,
               help="Also encode each sample set as dfc encode does and measure the file against the reference.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
-              help="Also write the figures to this JSON file.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Also write the figures to this JSON file (- for standard output; the text then goes to "
+                   "standard error).")
+@quiet_option
 def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length, qat, lr, final_lr, restarts,
-            batch_size, reference_scale, threads, device, seed, measure_encode, json_path):
+            batch_size, reference_scale, threads, device, seed, measure_encode, json_path, quiet):
     """Variance reduction of a dfc fit over the raw mean of walk-on-spheres samples, per sample count."""
     import torch
 
@@ -112,6 +113,7 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
     from ...render import render
     from ...train.fit import fit_samples
 
+    text_err = stdout_taken(json_path)
     if threads is not None:
         torch.set_num_threads(threads)
     curves = read_curves(scene_path)
@@ -141,10 +143,10 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
                    "reference_s": reference_s, "wos_s": wos_s, "rows": []}
     click.echo(f"{scene_path}: {width} × {height} pixels ({clean.mean():.1%} not crossed by a curve), "
                f"reference {k * width} × {k * height} in {reference_s:.1f} s; {len(samples)} walks in {wos_s:.1f} s "
-               f"({capped[0]} capped); mesh {mesh.n_triangles} triangles, {steps} steps")
+               f"({capped[0]} capped); mesh {mesh.n_triangles} triangles, {steps} steps", err=text_err)
     click.echo(f"{'spp':>4} {'raw MSE':>10} {'fit MSE':>10} {'factor':>7}   {'all: raw':>10} {'fit':>10} "
                f"{'factor':>7} {'fit s':>6}   PSNR against the reference (data range {peak:.3g}): raw / fit"
-               + (" / encode (encoder's own, on the samples)" if measure_encode else ""))
+               + (" / encode (encoder's own, on the samples)" if measure_encode else ""), err=text_err)
     for spp in spp_list:
         n = spp * n_pix
         subset = SampleSet(samples.xy[:n], samples.values[:n], samples.domain, samples.channels)
@@ -171,9 +173,9 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
         stats["rows"].append(row)
         click.echo(f"{spp:>4} {row['raw_mse']:10.3e} {row['fit_mse']:10.3e} {row['factor']:6.2f}×   "
                    f"{row['raw_mse_all']:10.3e} {row['fit_mse_all']:10.3e} {row['factor_all']:6.2f}× {fit_s:6.1f}   "
-                   + line)
+                   + line, err=text_err)
     if json_path:
-        write_bytes_atomic(json_path, json.dumps(stats, indent=2).encode())
+        write_json(json_path, stats)
 
 
 def _encode(samples, curves, steps, batch_size, seed, device, reference, clean, peak) -> dict:
