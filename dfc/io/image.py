@@ -50,6 +50,8 @@ __all__ = [
     "ExrBlockWriter",
     "Image",
     "PngBlockWriter",
+    "exr_header_bytes",
+    "exr_zip_block",
     "linear_to_srgb",
     "read_image",
     "srgb_to_linear",
@@ -359,6 +361,44 @@ class _BlockWriter:
         self.next_row += len(block)
 
 
+def exr_zip_block(rows: np.ndarray, order: list[int], dtype: np.dtype) -> bytes:
+    """The data of one ZIP-compressed OpenEXR chunk (a scanline block or a tile): rows (h, w, C) float values,
+    ``order`` the file's channel order (indices into C, channels sorted by name), ``dtype`` ``<f2`` or ``<f4``.
+    Stored uncompressed when compression does not help, as the format allows."""
+    # per scanline, per channel in file order, ``w`` little-endian values
+    raw = np.ascontiguousarray(rows[:, :, order].transpose(0, 2, 1), dtype=dtype).view(np.uint8).ravel()
+    t = np.concatenate([raw[0::2], raw[1::2]])  # OpenEXR's ZIP byte reordering ...
+    t[1:] = (t[1:].astype(np.int16) - t[:-1] + 128).astype(np.uint8)  # ... and delta predictor
+    packed = zlib.compress(t.tobytes(), 4)
+    return packed if len(packed) < len(raw) else raw.tobytes()
+
+
+def exr_header_bytes(width: int, height: int, channels: list[str], order: list[int], half: bool,
+                     extra: list[tuple[str, str, bytes]] = (), flags: int = 0) -> bytes:
+    """Magic, version and header attributes of a single-part OpenEXR file with ZIP compression, ``channels`` in file
+    ``order``, data and display window ``[0, width) × [0, height)``, ``extra`` attributes (name, type, value) and
+    version ``flags`` (e.g. 0x200 for tiles); the long-names flag is added when a name needs it."""
+    long_names = any(len(c.encode()) > 31 for c in channels)
+    chlist = b"".join(
+        channels[k].encode() + b"\0" + struct.pack("<iB3xii", 1 if half else 2, 0, 1, 1) for k in order
+    ) + b"\0"
+    box = struct.pack("<iiii", 0, 0, width - 1, height - 1)
+    attrs = [
+        ("channels", "chlist", chlist),
+        ("compression", "compression", bytes([3])),  # ZIP_COMPRESSION
+        ("dataWindow", "box2i", box),
+        ("displayWindow", "box2i", box),
+        ("lineOrder", "lineOrder", b"\0"),
+        ("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+        ("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
+        ("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+        *extra,
+    ]
+    header = struct.pack("<ii", 20000630, 2 | flags | (0x400 if long_names else 0))
+    header += b"".join(n.encode() + b"\0" + t.encode() + b"\0" + struct.pack("<i", len(v)) + v for n, t, v in attrs)
+    return header + b"\0"
+
+
 class ExrBlockWriter(_BlockWriter):
     """Streamed scanline EXR (ZIP, 16 rows per chunk, INCREASING_Y), written atomically.
 
@@ -370,7 +410,6 @@ class ExrBlockWriter(_BlockWriter):
     """
 
     ROWS_PER_CHUNK = 16
-    _ZIP = 3  # ZIP_COMPRESSION
 
     def __init__(self, path, width: int, height: int, channels: list[str], *, half: bool = True):
         channels = [str(c) for c in channels]
@@ -385,24 +424,7 @@ class ExrBlockWriter(_BlockWriter):
         self._offsets = np.zeros(self.n_chunks, dtype="<u8")
 
     def _start(self) -> None:
-        long_names = any(len(c.encode()) > 31 for c in self.channels)
-        chlist = b"".join(
-            self.channels[k].encode() + b"\0" + struct.pack("<iB3xii", 1 if self.half else 2, 0, 1, 1) for k in self.order
-        ) + b"\0"
-        box = struct.pack("<iiii", 0, 0, self.width - 1, self.height - 1)
-        attrs = [
-            ("channels", "chlist", chlist),
-            ("compression", "compression", bytes([self._ZIP])),
-            ("dataWindow", "box2i", box),
-            ("displayWindow", "box2i", box),
-            ("lineOrder", "lineOrder", b"\0"),
-            ("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
-            ("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
-            ("screenWindowWidth", "float", struct.pack("<f", 1.0)),
-        ]
-        header = struct.pack("<ii", 20000630, 2 | (0x400 if long_names else 0))
-        header += b"".join(n.encode() + b"\0" + t.encode() + b"\0" + struct.pack("<i", len(v)) + v for n, t, v in attrs)
-        self._file.write(header + b"\0")
+        self._file.write(exr_header_bytes(self.width, self.height, self.channels, self.order, self.half))
         self._table_at = self._file.tell()
         self._file.write(self._offsets.tobytes())  # placeholder, rewritten in _finish
 
@@ -418,12 +440,7 @@ class ExrBlockWriter(_BlockWriter):
         self._pending = self._pending[full:].copy()
 
     def _chunk(self, y: int, rows: np.ndarray) -> None:
-        # per scanline, per channel in file order, ``width`` little-endian values
-        raw = np.ascontiguousarray(rows[:, :, self.order].transpose(0, 2, 1), dtype=self.dtype).view(np.uint8).ravel()
-        t = np.concatenate([raw[0::2], raw[1::2]])  # OpenEXR's ZIP byte reordering ...
-        t[1:] = (t[1:].astype(np.int16) - t[:-1] + 128).astype(np.uint8)  # ... and delta predictor
-        packed = zlib.compress(t.tobytes(), 4)
-        data = packed if len(packed) < len(raw) else raw.tobytes()
+        data = exr_zip_block(rows, self.order, self.dtype)
         self._offsets[y // self.ROWS_PER_CHUNK] = self._file.tell()
         self._file.write(struct.pack("<ii", y, len(data)) + data)
 
