@@ -25,20 +25,31 @@ from .output import check_time, render_to_file
 @click.option("--frames", "n_frames", type=click.IntRange(min=1),
               help="Render N frames evenly spaced over the file's time axis into OUTPUT, a printf pattern with one "
                    "integer field (e.g. out_%04d.exr), numbered from 0.")
-@click.option("--device", default="cpu", show_default=True, help="torch device for rendering.")
+@click.option("--device", default="cpu", show_default=True,
+              help="torch device for rendering; with --workers and cuda, worker k renders on cuda:k mod GPUs.")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Processes rendering tiles (or row blocks) in parallel; the output is the same for any count.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
-def command(input_path, output, size, window, spp, full_float, t, n_frames, device, quiet):
+def command(input_path, output, size, window, spp, full_float, t, n_frames, device, workers, quiet):
     """Render IN to OUTPUT. Pixels sample the field at their centres (spec/conventions.md), so any size and any
-    window of the domain can be rendered; large outputs are written in row blocks with bounded memory."""
+    window of the domain can be rendered. Memory stays bounded for any size: EXR outputs above 4096 x 4096 pixels
+    are written as tiled EXR tile by tile (up to 1048576 pixels per side), smaller ones and PNG (up to 65536 per
+    side) in row blocks."""
     from ..codec import load
+    from ..io.bands import MAX_BAND_SIDE
     from ..render import check_window
 
     if n_frames is not None and t is not None:
         raise click.UsageError("give either --time or --frames")
     pattern = check_pattern(output) if n_frames is not None else None
     check_output(output)
-    check_size(size)
-    model = load(input_path, device=check_device(device))
+    if output.lower().endswith(".png"):
+        check_size(size, why="; PNG output stops there: write .exr (tiled) for larger renders")
+    else:
+        check_size(size, limit=MAX_BAND_SIDE)
+    device = check_device(device)
+    model = load(input_path, device=device)
+    devices = _worker_devices(device, workers)
     domain = model.field.mesh.domain
     try:
         window = check_window(window, domain)
@@ -46,12 +57,14 @@ def command(input_path, output, size, window, spp, full_float, t, n_frames, devi
         raise click.BadParameter(str(e), param_hint="'--window'") from None
     size = size or default_size(window, domain)
     if pattern is None:
-        render_to_file(model, output, size, window, spp=spp, half=not full_float, t=check_time(model, t), quiet=quiet)
-        click.echo(f"wrote {output}: {size[0]}x{size[1]} of window {tuple(round(v, 6) for v in window)}")
+        layout = render_to_file(model, output, size, window, spp=spp, half=not full_float, t=check_time(model, t),
+                                quiet=quiet, workers=workers, source=input_path, devices=devices)
+        click.echo(f"wrote {output}: {size[0]}x{size[1]} of window {tuple(round(v, 6) for v in window)} ({layout})")
         return
     times = frame_times(model, n_frames)
     for k, tk in enumerate(times):
-        render_to_file(model, pattern % k, size, window, spp=spp, half=not full_float, t=tk, quiet=quiet)
+        render_to_file(model, pattern % k, size, window, spp=spp, half=not full_float, t=tk, quiet=quiet,
+                       workers=workers, source=input_path, devices=devices)
     click.echo(f"wrote {len(times)} frames {pattern % 0} .. {pattern % (len(times) - 1)}: {size[0]}x{size[1]}, "
                f"t = {times[0]:g} .. {times[-1]:g}")
 
@@ -71,3 +84,14 @@ def frame_times(model, n: int) -> list[float]:
     if times is None:
         raise click.BadParameter("this file has no time axis", param_hint="'--frames'")
     return [float(v) for v in np.linspace(times[0], times[-1], n)] if n > 1 else [float(times[0])]
+
+
+def _worker_devices(device: str, workers: int) -> list[str]:
+    """Devices of the render workers: ``device`` for each, or with CUDA every visible GPU in turn from ``device``'s."""
+    import torch
+
+    if not device.startswith("cuda") or workers == 1:
+        return [device]
+    first = torch.device(device).index or 0
+    count = torch.cuda.device_count()
+    return [f"cuda:{(first + k) % count}" for k in range(workers)]

@@ -1,4 +1,4 @@
-"""Rendering a ``.dfield`` to an EXR or PNG file in row blocks; shared by ``dfc decode`` and ``dfc zoom``."""
+"""Rendering a ``.dfield`` to an EXR or PNG file with a progress bar; shared by ``dfc decode`` and ``dfc zoom``."""
 
 from __future__ import annotations
 
@@ -7,31 +7,20 @@ import click
 from .options import progress_bar
 
 
-def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: int, half: bool, t, quiet: bool) -> None:
-    """Stream a ``size`` render of ``window`` into ``output`` (.exr: half or float; .png: 8-bit sRGB, tone-mapped
-    for HDR files). Memory stays bounded by the render block; the file appears only when complete."""
-    from ..io.image import ExrBlockWriter, PngBlockWriter
-    from ..render import row_blocks
+def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: int, half: bool, t, quiet: bool,
+                   workers: int = 1, source=None, devices=None) -> str:
+    """Render ``window`` at ``size`` into ``output`` (``dfc.render_file.write_render``: tiled EXR when large, else
+    scanline EXR or PNG), ``workers`` processes rendering regions of ``source``. Memory stays bounded; the file
+    appears only when complete. Returns the layout written ("tiled" or "scanline")."""
+    from ..render_file import write_render
 
-    width, height = size
-    channels = model.channels
-    if output.lower().endswith(".png"):
-        if len(channels) > 4:
-            raise click.UsageError(f"PNG holds 1 to 4 channels; this file has {len(channels)}: write .exr")
-        writer = PngBlockWriter(output, width, height, len(channels), hdr=_is_hdr(model))
-    else:
-        writer = ExrBlockWriter(output, width, height, channels, half=half)
-    with writer, progress_bar(height, "render", quiet) as bar:
-        bar.unit = "row"
-        for y0, block in row_blocks(model, width, height, window, spp=spp, t=t):
-            writer.write_rows(y0, block)
-            bar.update(len(block))
+    with progress_bar(0, "render", quiet, unit="region") as bar:
+        def callback(done, total):
+            bar.total = total
+            bar.update(1)
 
-
-def _is_hdr(model) -> bool:
-    """HDR files (log transform, or an HDR input recorded by the encoder) are tone-mapped into PNG."""
-    encoder = getattr(model, "header", {}).get("encoder", {})
-    return model.transform == "log" or encoder.get("hdr") is True
+        return write_render(model, output, size, window, spp=spp, half=half, t=t, workers=workers, source=source,
+                            devices=devices, callback=callback)
 
 
 def check_time(model, t):
