@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import click
@@ -70,11 +71,18 @@ def _times(ctx, param, value):
 @click.option("--fields", help="FEM input: comma-separated point-data arrays to encode [default: all].")
 @click.option("--fem-sampling", type=click.Choice(["linear", "nearest"]), default="linear", show_default=True,
               help="FEM input: values of the training points inside an element (never across a barrier).")
+@click.option("--epoch-pixels", type=click.IntRange(min=1),
+              help="Image input read out of core: stratified pixels drawn per epoch, band by band  [default: sized to "
+                   "512 MiB of samples, at most every pixel]. Images above 4096 x 4096 pixels are always read so.")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Image input: train data-parallel on N local ranks (torch.distributed: gloo on CPU, NCCL with "
+                   "--device cuda, one GPU per rank), each reading its own bands; --batch-size is split between them. "
+                   "Across machines use torchrun (README).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the summary as JSON here.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
             dim, feature_bits, mesh_bits, loss, seed, device, channels, fit_curves_to_image, times, fields,
-            fem_sampling, json_path, quiet):
+            fem_sampling, epoch_pixels, workers, json_path, quiet):
     """Encode INPUT with the discontinuity CURVES into OUTPUT. INPUT is an EXR/PNG/JPEG image; a .npz sample set
     or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
     triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling).
@@ -84,7 +92,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written file, decoded again,
     against the input at its pixel centres (sample positions, FEM nodes; every frame of a sequence).
     """
-    from ..codec import EncodeSettings, encode_fem, encode_frames, encode_image, encode_samples
+    from ..codec import EncodeSettings
     from ..geometry.curves import read_curves
     from ..io.atomic import write_bytes_atomic
     from ..train.fit import DEFAULT_STEPS
@@ -103,25 +111,19 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                               target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size, dim=dim,
                               feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
-                              device=check_device(device))
+                              device=check_device(device), epoch_pixels=epoch_pixels, workers=workers)
     curves = read_curves(curves_path)
-    signal = _read_input(kind, input_paths, times, channels.split(",") if channels else None,
-                         fields.split(",") if fields else None)
-    with progress_bar(settings.steps, "fit", quiet) as bar:
-        def callback(step, loss_value, psnr):
-            bar.update(1)
-            if step % 25 == 0:
-                bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
-
-        if kind == "samples":
-            blob, report = encode_samples(signal, curves, settings, callback=callback)
-        elif kind == "fem":
-            blob, report = encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
-        elif kind == "frames":
-            blob, report = encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
-        else:
-            blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
-    write_bytes_atomic(output, blob)
+    if _out_of_core(kind, input_paths, epoch_pixels, workers):
+        job = BandJob(input_paths[0], channels.split(",") if channels else None, curves, settings, fit_curves_to_image,
+                      output, quiet)
+        blob, report = run_band_job(job)
+        if report is None:  # a rank other than 0 of a torchrun run: rank 0 writes and reports
+            return
+    else:
+        blob, report = _encode_in_memory(kind, input_paths, times, channels, fields, curves, settings,
+                                         fit_curves_to_image, fem_sampling, quiet)
+    if blob is not None:
+        write_bytes_atomic(output, blob)
     unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
     click.echo(f"wrote {output}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}")
     for name, size in report.chunk_bytes.items():
@@ -134,6 +136,136 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
 
         write_bytes_atomic(json_path, (json.dumps({"output": str(Path(output)), **asdict(report)}, indent=2)
                                        + "\n").encode())
+
+
+def _fit_callback(bar):
+    """The fit's progress: one tick per step, loss and batch PSNR every 25 steps."""
+    def callback(step, loss_value, psnr):
+        bar.update(1)
+        if step % 25 == 0:
+            bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
+
+    return callback
+
+
+def _encode_in_memory(kind, input_paths, times, channels, fields, curves, settings, fit_curves_to_image,
+                      fem_sampling, quiet):
+    """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
+    from ..codec import encode_fem, encode_frames, encode_image, encode_samples
+
+    signal = _read_input(kind, input_paths, times, channels.split(",") if channels else None,
+                         fields.split(",") if fields else None)
+    with progress_bar(settings.steps, "fit", quiet) as bar:
+        callback = _fit_callback(bar)
+        if kind == "samples":
+            blob, report = encode_samples(signal, curves, settings, callback=callback)
+        elif kind == "fem":
+            blob, report = encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
+        elif kind == "frames":
+            blob, report = encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+        else:
+            blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+    return blob, report
+
+
+IN_MEMORY_PIXELS = 1 << 24
+"""Image inputs with more pixels than this (4096²) are encoded out of core (``dfc.codec.encode_bands``)."""
+
+
+def _out_of_core(kind: str, paths, epoch_pixels, workers: int) -> bool:
+    """Whether an input is encoded out of core: an image with --epoch-pixels or --workers, under torchrun, or an
+    EXR above ``IN_MEMORY_PIXELS``; ``click.UsageError`` for those options with other inputs."""
+    from ..io.bands import ExrBands
+    from ..io.image import EXR_EXTENSIONS
+    from ..train.distributed import launched
+
+    asked = epoch_pixels is not None or workers > 1 or launched()
+    if kind != "image":
+        if asked:
+            raise click.UsageError(f"--epoch-pixels, --workers and torchrun apply to one image input, not {kind}")
+        return False
+    if paths[0].lower().endswith(EXR_EXTENSIONS):
+        bands = ExrBands(paths[0])  # the header: a damaged or truncated file is refused before any rank starts
+        return asked or bands.width * bands.height > IN_MEMORY_PIXELS
+    return asked
+
+
+@dataclass
+class BandJob:
+    """An out-of-core encode as each rank runs it: the input, its curves, the settings, where rank 0 writes."""
+
+    input_path: str
+    channels: list[str] | None
+    curves: object
+    settings: object
+    fit_curves: bool
+    output: str
+    quiet: bool
+
+
+def run_band_job(job: BandJob):
+    """Run an out-of-core encode here (one process), as a rank of this torchrun run, or on ``job.settings.workers``
+    local ranks (``dfc.train.distributed.launch``, rank 0 writing the file). Returns (blob to write or None,
+    report); (None, None) on ranks other than 0."""
+    from ..train import distributed
+
+    if job.settings.workers > 1:
+        return None, distributed.launch(job.settings.workers, rank_main, job)[0]
+    if distributed.launched():
+        return _as_rank(job)
+    return _encode_bands(job)
+
+
+def rank_main(job: BandJob):
+    """Entry point of each local rank of ``dfc encode --workers N``: rank 0 writes the file and returns the report.
+    A rank ends when the launching process does, however that ends (Linux: the parent-death signal)."""
+    from ..io.atomic import write_bytes_atomic
+
+    _end_with_parent()
+    blob, report = _as_rank(job)
+    if blob is not None:
+        write_bytes_atomic(job.output, blob)
+    return report
+
+
+def _end_with_parent() -> None:
+    """SIGTERM ends this process as it ends the CLI, and Linux sends it when the parent dies
+    (``prctl(PR_SET_PDEATHSIG)``)."""
+    import ctypes
+    import signal
+    import sys
+
+    from . import _terminate
+
+    signal.signal(signal.SIGTERM, _terminate)  # unwinds, so the atomic writers remove their temporary files
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+
+
+def _as_rank(job: BandJob):
+    """``_encode_bands`` inside the process group of this run (joined here, left at the end)."""
+    from ..train import distributed
+
+    job = replace(job, settings=replace(job.settings, device=distributed.init(job.settings.device)))
+    try:
+        return _encode_bands(job)
+    except RuntimeError as e:
+        lost = None if isinstance(e, distributed.RankError) else distributed.lost_rank(e)
+        if lost is None:
+            raise
+        raise lost from None
+    finally:
+        distributed.finish()
+
+
+def _encode_bands(job: BandJob):
+    from ..codec import encode_bands
+    from ..io.bands import open_bands
+    from ..train.distributed import world
+
+    source = open_bands(job.input_path, job.channels)
+    with progress_bar(job.settings.steps, "fit", job.quiet or world()[0] != 0) as bar:
+        return encode_bands(source, job.curves, job.settings, fit_curves=job.fit_curves, callback=_fit_callback(bar))
 
 
 def _read_input(kind: str, paths: tuple[str, ...], times, channels, fields):

@@ -20,7 +20,7 @@ from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["DEFAULT_STEPS", "fit", "fit_frames", "fit_image", "fit_samples"]
+__all__ = ["DEFAULT_STEPS", "fit", "fit_bands", "fit_frames", "fit_image", "fit_samples"]
 
 
 def fit(
@@ -150,7 +150,15 @@ def fit_image(
 def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw,
                times=None):
     """A fresh ``FieldModel`` for targets ``values`` (M, C) and the ``fit`` settings derived from them
-    (one feature slice per entry of ``times`` when given).
+    (one feature slice per entry of ``times`` when given); see ``_model_for``."""
+    return _model_for(float(values.min()), float(values.max()), values.mean(axis=0, dtype=np.float64), mesh, channels,
+                      loss, steps, qat_steps, dim, seed, device, data_range, model_kw, times)
+
+
+def _model_for(lo: float, hi: float, mean: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device,
+               data_range, model_kw, times=None):
+    """A fresh ``FieldModel`` for targets whose values span ``lo .. hi`` with per-channel ``mean`` (C,), and the
+    ``fit`` settings derived from them.
 
     HDR targets (some value > 1) default to the relative MSE and, when every value is > -1, to the ``log`` value
     transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
@@ -159,10 +167,10 @@ def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, 
     """
     from ..field.feature_field import FeatureField
 
-    hdr = float(values.max()) > 1.0
+    hdr = hi > 1.0
     if loss == "auto":
         loss = "relmse" if hdr else "mse"
-    if hdr and float(values.min()) > -1.0:
+    if hdr and lo > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps
     if qat_steps is None:
@@ -170,12 +178,70 @@ def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, 
     n_slices = 1 if times is None else len(times)
     field = FeatureField(mesh, dim=dim, seed=seed, n_slices=n_slices, times=times, device=device)
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
-    mean = torch.from_numpy(values.mean(axis=0, dtype=np.float64))
+    mean = torch.from_numpy(np.asarray(mean, dtype=np.float64))
     with torch.no_grad():  # start at the mean value: HDR values are far from the MLP's initial output
         out_bias = model.decoder.linears()[-1].bias
         out_bias.copy_(torch.log1p(mean.clamp_min(0)) if model.transform == "log" else mean)
-    data_range = signal_range(values) if data_range is None else data_range
+    data_range = signal_range(np.array([lo, hi])) if data_range is None else data_range
     return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range}
+
+
+def fit_bands(
+    source,
+    mesh,
+    stats,
+    *,
+    steps: int | None = None,
+    batch_size: int = 1 << 14,
+    epoch_pixels: int | None = None,
+    mixed=None,
+    held_out=None,
+    dim: int = 5,
+    seed: int = 0,
+    loss: str = "auto",
+    device: str = "cpu",
+    qat_steps: int | None = None,
+    feature_bits: int = 8,
+    callback: Callable[[int, Tensor, Tensor], None] | None = None,
+    channels: list[str] | None = None,
+    lr: float = 1e-2,
+    final_lr: float | None = 1e-3,
+    data_range: float | None = None,
+    **model_kw,
+) -> FieldModel:
+    """Fit a ``FieldModel`` on ``mesh`` to a raster read in bands (``dfc.io.bands``), out of core and, inside a
+    ``torch.distributed`` run, data-parallel (``dfc.train.bands.band_sampler``, ``dfc.train.distributed``).
+
+    Parameters
+    ----------
+    source : band source covering ``mesh.domain``; stats : its ``dfc.train.bands.BandStats`` over all ranks (range
+        and mean initialise the model as ``fit_image`` does)
+    batch_size : samples per step over all ranks (rank r draws ``batch_size // N``, plus one for r below the
+        remainder)
+    epoch_pixels : pixels per epoch over all ranks (default ``dfc.train.bands.default_epoch_pixels``)
+    mixed, held_out : pixels never sampled (``EdgeMask``, ``HeldOut``, or None)
+    other arguments : as in ``fit_image``
+
+    Returns
+    -------
+    FieldModel, in evaluation mode, equal on every rank; quantised mode stays on when ``qat_steps > 0``.
+    """
+    from .bands import band_sampler
+    from .distributed import world
+
+    rank, size = world()
+    model, run = _model_for(float(stats.lo.min()), float(stats.hi.max()), stats.mean, mesh,
+                            channels or source.channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw)
+    local = batch_size // size + (rank < batch_size % size)
+    if local < 1:
+        raise InputError(f"batch size {batch_size} is smaller than the number of ranks ({size})")
+    # on a GPU each epoch's points are located once, so that a step has no host round trip; on the CPU that would
+    # save nothing (every sample is used once per epoch) and cost about 84 bytes per sample
+    query = model.field.query if torch.device(device).type == "cuda" else None
+    sampler = band_sampler(source, mesh.domain, local, epoch_pixels=epoch_pixels, mixed=mixed, held_out=held_out,
+                           rank=rank, world=size, device=device, query=query)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
+    return model
 
 
 SAMPLES_LR = 5e-3
