@@ -67,7 +67,8 @@ class EncodeSettings:
 
 @dataclass
 class EncodeReport:
-    """What an encode measured. ``psnr`` is of the written file decoded, against the input, with ``data_range``."""
+    """What an encode measured. ``psnr`` is of the written file decoded, against the input, with ``data_range``;
+    ``held_out`` is the number of held-out pixels it was measured at (out-of-core encodes), else None."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -78,6 +79,7 @@ class EncodeReport:
     n_triangles: int
     n_features: int
     seconds: dict[str, float] = field(default_factory=dict)
+    held_out: int | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -186,8 +188,10 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
                                                   "hdr": float(stats.hi.max()) > 1.0, "held_out": len(held_xy)})
     centres = (held_xy + 0.5) * np.array([(mesh.domain[2] - mesh.domain[0]) / w, (mesh.domain[3] - mesh.domain[1]) / h])
     centres += np.array(mesh.domain[:2])
-    return _finish(model, settings, info, seconds, w * h, lambda m: (held_values, values_at(
+    blob, report = _finish(model, settings, info, seconds, w * h, lambda m: (held_values, values_at(
         m, centres, device=settings.device, block=QUERY_BLOCK)), peak)
+    report.held_out = len(held_xy)
+    return blob, report
 
 
 def _on_rank0(build):

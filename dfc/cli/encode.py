@@ -90,7 +90,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     The mesh is built first (size knobs: --max-triangles, --max-area, --edge-length or --target-bytes; default
     about 2,000 triangles plus those the curves force), then a feature field is fitted on it and written. The
     summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written file, decoded again,
-    against the input at its pixel centres (sample positions, FEM nodes; every frame of a sequence).
+    against the input at its pixel centres (sample positions, FEM nodes; every frame of a sequence; for an image
+    read out of core, its held-out pixels).
     """
     from ..codec import EncodeSettings
     from ..geometry.curves import read_curves
@@ -112,6 +113,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
                               target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size, dim=dim,
                               feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
                               device=check_device(device), epoch_pixels=epoch_pixels, workers=workers)
+    if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
+        raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
+                                 param_hint="'--workers'")
     curves = read_curves(curves_path)
     if _out_of_core(kind, input_paths, epoch_pixels, workers):
         job = BandJob(input_paths[0], channels.split(",") if channels else None, curves, settings, fit_curves_to_image,
@@ -129,7 +133,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     for name, size in report.chunk_bytes.items():
         click.echo(f"  {name}  {size:>10} bytes")
     click.echo(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
-    click.echo(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB (data range {report.data_range:.4g})")
+    where = f", at {report.held_out} held-out pixels" if report.held_out else ""
+    click.echo(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB (data range {report.data_range:.4g}"
+               f"{where})")
     click.echo("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in report.seconds.items()))
     if json_path:
         from dataclasses import asdict
@@ -166,6 +172,12 @@ def _encode_in_memory(kind, input_paths, times, channels, fields, curves, settin
         else:
             blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
     return blob, report
+
+
+def _gpus() -> int:
+    import torch
+
+    return torch.cuda.device_count()
 
 
 IN_MEMORY_PIXELS = 1 << 24

@@ -65,6 +65,8 @@ def init(device: str) -> str:
     local_rank = int(os.environ.get("LOCAL_RANK", "0"))
     local_ranks = int(os.environ.get("LOCAL_WORLD_SIZE", os.environ.get("WORLD_SIZE", "1")))
     if torch.device(device).type == "cuda":
+        if local_rank >= torch.cuda.device_count():
+            raise RankError(f"local rank {local_rank} needs its own GPU, but {torch.cuda.device_count()} are visible")
         device = f"cuda:{local_rank}"
         torch.cuda.set_device(device)
         backend = "nccl"

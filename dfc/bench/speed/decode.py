@@ -21,25 +21,7 @@ import numpy as np
 import torch
 
 from ...io.atomic import write_bytes_atomic
-from ..timing import best_seconds
-
-
-def _peak_rss_mb(cmd: list[str]) -> float:
-    """Run ``cmd`` and return its peak resident memory in MB, polling ``VmHWM`` in /proc (Linux). (A child's
-    ``ru_maxrss`` would also count the memory of this process, which it starts as a copy of.)"""
-    proc = subprocess.Popen(cmd)
-    status, peak = Path(f"/proc/{proc.pid}/status"), 0.0
-    while proc.poll() is None:
-        try:
-            for line in status.read_text().splitlines():
-                if line.startswith("VmHWM:"):
-                    peak = max(peak, int(line.split()[1]) / 1024.0)
-        except OSError:
-            pass
-        time.sleep(0.1)
-    if proc.returncode:
-        raise click.ClickException(f"{' '.join(cmd)} failed with exit status {proc.returncode}")
-    return peak
+from ..timing import best_seconds, run_measured
 
 
 @click.command()
@@ -50,8 +32,9 @@ def _peak_rss_mb(cmd: list[str]) -> float:
 @click.option("--steps", type=click.IntRange(1), default=300, show_default=True,
               help="Fit steps when encoding the shipped sample (no FILE).")
 @click.option("--repeat", type=click.IntRange(1), default=3, show_default=True, help="Runs per timing (best kept).")
+@click.option("--device", default="cpu", show_default=True, help="torch device of the decodes (cpu, cuda, ...).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
-def command(dfield, size, big, steps, repeat, json_path):
+def command(dfield, size, big, steps, repeat, device, json_path):
     """Time decoding DFIELD (default: the shipped sample, encoded now) against its bare MLP; measure the peak
     memory of a --big x --big EXR decode."""
     from ...codec import EncodeSettings, encode_image, load
@@ -66,32 +49,36 @@ def command(dfield, size, big, steps, repeat, json_path):
             blob, _ = encode_image(image, read_any(samples / "sample.json"), EncodeSettings(steps=steps))
             dfield = Path(tmp) / "sample.dfield"
             dfield.write_bytes(blob)
-        model = load(dfield)
+        dev = torch.device(device)
+        model = load(dfield, device=device)
         x0, y0, x1, y1 = model.field.mesh.domain
         u = (np.arange(size) + 0.5) / size
         X, Y = np.meshgrid(x0 + u * (x1 - x0), y0 + u * (y1 - y0))
-        xy = torch.from_numpy(np.stack([X.ravel(), Y.ravel()], axis=1))
+        xy = torch.from_numpy(np.stack([X.ravel(), Y.ravel()], axis=1)).to(dev)
         with torch.no_grad():
             features = model.features(xy).float()
-        cpu = torch.device("cpu")
         with torch.no_grad():
-            t_render = best_seconds(lambda: render(model, size, size), repeat, cpu)
-            t_mlp = best_seconds(lambda: model.decoder(features), repeat, cpu)
+            t_render = best_seconds(lambda: render(model, size, size), repeat, dev)
+            t_mlp = best_seconds(lambda: model.decoder(features), repeat, dev)
         out = Path(tmp) / "out.exr"
-        cmd = [sys.executable, "-m", "dfc", "decode", str(dfield), "-o", str(out), "-q"]
+        cmd = [sys.executable, "-m", "dfc", "decode", str(dfield), "-o", str(out), "-q", "--device", device]
         clock = time.perf_counter()
         subprocess.run(cmd + ["--size", f"{size}x{size}"], check=True)
         t_cli = time.perf_counter() - clock
         figures = {"size": size, "points": size * size, "render_s": t_render, "mlp_s": t_mlp,
-                   "ratio": t_render / t_mlp, "cli_decode_s": t_cli, "threads": torch.get_num_threads()}
+                   "ratio": t_render / t_mlp, "s_per_megapixel": t_render / (size * size / 1e6),
+                   "cli_decode_s": t_cli, "threads": torch.get_num_threads(), "device": device}
         if big:
-            clock = time.perf_counter()
-            peak = _peak_rss_mb(cmd + ["--size", f"{big}x{big}"])
-            figures.update(big=big, big_decode_s=time.perf_counter() - clock, big_peak_rss_mb=peak,
+            try:
+                peak = run_measured(cmd + ["--size", f"{big}x{big}"])
+            except RuntimeError as e:
+                raise click.ClickException(str(e)) from None
+            figures.update(big=big, big_decode_s=peak.seconds, big_peak_rss_mb=peak.hwm,
                            big_file_mb=out.stat().st_size / 2**20)
     click.echo(f"render {size}x{size} (location + interpolation + MLP): {1e3 * t_render:9.1f} ms")
     click.echo(f"bare MLP on the same {size * size} features:        {1e3 * t_mlp:9.1f} ms")
     click.echo(f"ratio (target <= 1.5):                             {figures['ratio']:9.3f}")
+    click.echo(f"seconds per megapixel rendered on {device}:          {figures['s_per_megapixel']:9.4f}")
     click.echo(f"dfc decode to EXR, whole process:                  {1e3 * t_cli:9.1f} ms")
     if big:
         click.echo(f"dfc decode {big}x{big} EXR: {figures['big_decode_s']:.1f} s, peak memory "

@@ -88,6 +88,6 @@ def command(n_triangles: int, n_curves: int, n_points: int, batch: int, repeat: 
     click.echo(f"{'location + interpolation':>28}: {field_s * 1e3:9.1f} ms")
     click.echo(f"{'MLP 5-64-64-3':>28}: {mlp_s * 1e3:9.1f} ms")
     click.echo(f"{'ratio (target <= 0.5)':>28}: {stats['ratio']:9.3f}")
-    click.echo(f"{f'training step, batch {batch}':>28}: {step_s * 1e3:9.1f} ms")
+    click.echo(f"{f'training step, batch {batch}':>28}: {step_s * 1e3:9.1f} ms ({batch / step_s:.3g} samples/s)")
     if json_path:
         write_bytes_atomic(json_path, json.dumps(stats, indent=2).encode())
