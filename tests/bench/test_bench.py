@@ -107,3 +107,15 @@ def test_bad_requests_fail_before_writing(tmp_path, args, error):
 def test_input_and_scene_are_exclusive(tmp_path):
     result = CliRunner().invoke(cli, ["bench", "--scene", "shapes", "--curves", __file__, "-o", str(tmp_path)])
     assert result.exit_code == 2 and "INPUT" in result.output
+
+
+def test_run_measured_sees_a_childs_peak_memory():
+    import sys
+
+    from dfc.bench.timing import run_measured
+
+    peak = run_measured([sys.executable, "-c", "import time; b = bytearray(300 << 20); time.sleep(1.0)"],
+                        interval=0.05)
+    assert 300 <= peak.hwm < 600 and peak.tree >= peak.hwm and peak.seconds >= 1.0
+    with pytest.raises(RuntimeError, match="exit status 3"):
+        run_measured([sys.executable, "-c", "raise SystemExit(3)"])
