@@ -88,7 +88,7 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
     qat_from = total - schedule.qat_steps if schedule.qat_steps else None
     history: dict[str, list[Tensor]] = {}
     rank = world()[0]
-    device = next(model.parameters()).device
+    device = next(model.parameters(), torch.empty(0)).device
     generator = torch.Generator(device).manual_seed(rank_seed(seed, rank))
     step = 0
     model.train()
