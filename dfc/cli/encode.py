@@ -255,9 +255,16 @@ def _end_with_parent() -> None:
 
 
 def _as_rank(job: BandJob):
-    """``_encode_bands`` inside the process group of this run (joined here, left at the end)."""
+    """``_encode_bands`` inside the process group of this run (joined here, left at the end). The progress bar
+    locks with a thread lock: tqdm's default holds a named semaphore, which a killed rank would leave behind (and
+    Python's resource tracker would warn about after the run's one error line)."""
+    import threading
+
+    from tqdm import tqdm
+
     from ..train import distributed
 
+    tqdm.set_lock(threading.RLock())
     job = replace(job, settings=replace(job.settings, device=distributed.init(job.settings.device)))
     try:
         return _encode_bands(job)
