@@ -144,6 +144,21 @@ def test_bad_worker_counts_and_damaged_input_fail_before_any_rank_starts(tmp_pat
     assert list(tmp_path.iterdir()) == [cut]
 
 
+def test_a_damaged_band_mid_file_stops_every_rank_with_one_line(tmp_path):
+    data = bytearray((SAMPLES / "sample.exr").read_bytes())
+    middle = len(data) // 2
+    data[middle : middle + 2000] = bytes(2000)  # zeroed chunk data, the offset table intact: found by a rank's scan
+    bad = tmp_path / "bad.exr"
+    bad.write_bytes(bytes(data))
+    out = tmp_path / "o.dfield"
+    proc = subprocess.run([sys.executable, "-m", "dfc", "encode", bad, "--curves", SAMPLES / "sample.json", "-o", out,
+                           "--steps", "20", "--batch-size", "1024", "--workers", "2", "-q"], capture_output=True,
+                          text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+    assert_one_line_error(proc.returncode, proc.stderr, "damaged OpenEXR data in rows")
+    assert proc.stderr.strip().splitlines()[-1].startswith("dfc: error: rank ")
+    assert proc.stdout == "" and sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr"]
+
+
 class _Failure:
     def __init__(self, exitcode, message, timestamp):
         self.exitcode, self.message, self.timestamp = exitcode, message, timestamp

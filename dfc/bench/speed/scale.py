@@ -10,6 +10,10 @@ trained on) and in windows of the domain at 33× and 100× zoom around points on
 also the cost of the gradients' dense all-reduce: the bytes every step moves (4 per parameter, the feature bank
 dominating) and the time of an all-reduce of that size between the ranks (gloo on CPU ranks, ``ALLREDUCE_REPEAT``
 times after a warm-up; an upper bound of what a step waits, as DDP overlaps it with the backward pass).
+
+Memory targets (checked and printed): an encode at ``TARGET_SIZE``² (or smaller) peaks at ``TARGET_MB`` or less,
+and with several ``--size`` each larger encode peaks within ``TARGET_GROWTH`` times the smallest size's run (with
+workers, the process tree's peak is compared).
 """
 
 from __future__ import annotations
@@ -25,6 +29,9 @@ import numpy as np
 
 ALLREDUCE_REPEAT = 10
 """All-reduces timed per measurement."""
+TARGET_SIZE, TARGET_MB, TARGET_GROWTH = 16384, 2048.0, 1.25
+"""Memory targets: an encode of a ``TARGET_SIZE``² image peaks at ``TARGET_MB`` MB or less; a larger one within
+``TARGET_GROWTH`` times the smaller run's peak."""
 
 
 def allreduce_seconds(n_values: int) -> float:
@@ -48,8 +55,9 @@ def allreduce_seconds(n_values: int) -> float:
 
 
 @click.command()
-@click.option("--size", type=click.IntRange(256, 1 << 20), default=16384, show_default=True,
-              help="Side of the square input image, pixels.")
+@click.option("--size", "sizes", type=click.IntRange(256, 1 << 20), multiple=True,
+              help="Side of the square input image, pixels; repeat to run several sizes one after the other and "
+                   "compare their peak memory (e.g. --size 16384 --size 32768)  [default: 16384].")
 @click.option("--boundaries", type=click.IntRange(1), default=100, show_default=True,
               help="Wavy boundaries of the scene (each a chain of --pieces cubics).")
 @click.option("--pieces", type=click.IntRange(1), default=100, show_default=True, help="Cubic pieces per boundary.")
@@ -65,22 +73,54 @@ def allreduce_seconds(n_values: int) -> float:
 @click.option("--dir", "work_dir", type=click.Path(file_okay=False), help="Keep the files here  [default: a "
               "temporary directory, removed].")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
-def command(size, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles, workers, render, seed, work_dir,
+def command(sizes, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles, workers, render, seed, work_dir,
             json_path):
-    """Encode and decode a --size² analytic render out of core; print peak memory, times and PSNR."""
+    """Encode and decode a --size² analytic render out of core; print peak memory, times and PSNR, and whether the
+    memory targets are met (an encode of 16384² within 2 GB, a larger one within 1.25x of the smallest run)."""
     from ...io.atomic import write_bytes_atomic
 
-    if work_dir is not None:
-        Path(work_dir).mkdir(parents=True, exist_ok=True)
-        figures = _run(Path(work_dir), size, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles,
-                       workers, render, seed)
-    else:
-        with tempfile.TemporaryDirectory(prefix="dfc-scale-") as tmp:
-            figures = _run(Path(tmp), size, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles,
+    runs = []
+    for size in sorted(set(sizes or (TARGET_SIZE,))):
+        if work_dir is not None:
+            folder = Path(work_dir) / str(size)
+            folder.mkdir(parents=True, exist_ok=True)
+            figures = _run(folder, size, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles,
                            workers, render, seed)
-    _print(figures)
+        else:
+            with tempfile.TemporaryDirectory(prefix="dfc-scale-") as tmp:
+                figures = _run(Path(tmp), size, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles,
+                               workers, render, seed)
+        _print(figures)
+        runs.append(figures)
+    targets = memory_targets(runs)
+    for line in targets:
+        click.echo(line)
     if json_path:
-        write_bytes_atomic(json_path, (json.dumps(figures, indent=2) + "\n").encode())
+        write_bytes_atomic(json_path, (json.dumps({"runs": runs, "memory_targets": targets}, indent=2)
+                                       + "\n").encode())
+
+
+def encode_peak_mb(figures: dict) -> float:
+    """The encode's peak resident memory, MB: the process tree's with workers, else the process's own."""
+    return figures["encode_tree_mb"] if figures["workers"] > 1 else figures["encode_hwm_mb"]
+
+
+def memory_targets(runs: list[dict]) -> list[str]:
+    """One line per memory target the runs (sorted by size) can check: runs at ``TARGET_SIZE``² or less against
+    ``TARGET_MB``, larger ones against ``TARGET_GROWTH`` times the smallest run's peak."""
+    lines = []
+    first = runs[0]
+    for f in runs:
+        peak, side = encode_peak_mb(f), f"{f['size']}²"
+        if f["size"] <= TARGET_SIZE:
+            verdict = "met" if peak <= TARGET_MB else "MISSED"
+            lines.append(f"memory target: encode at {side} peaks at {peak:.0f} MB <= {TARGET_MB:.0f} MB: {verdict}")
+        if f is not first:
+            ratio = peak / encode_peak_mb(first)
+            verdict = "met" if ratio <= TARGET_GROWTH else "MISSED"
+            lines.append(f"memory target: encode at {side} peaks at {ratio:.2f}x the {first['size']}² run "
+                         f"<= {TARGET_GROWTH}x: {verdict}")
+    return lines
 
 
 def _run(tmp: Path, size, boundaries, pieces, steps, batch_size, epoch_pixels, max_triangles, workers, render, seed):
@@ -150,6 +190,8 @@ def _measured(run, cmd):
 
 
 def _print(f: dict) -> None:
+    from ...render_file import TILED_PIXELS
+
     click.echo(f"scene: stripes, {f['size']}x{f['size']} half RGB EXR ({f['input_mb']:.0f} MB), {f['pieces']} cubic "
                f"pieces; written band by band in {f['scene_write_s']:.1f} s")
     tree = f" (process tree {f['encode_tree_mb']:.0f} MB)" if f["workers"] > 1 else ""
@@ -164,5 +206,6 @@ def _print(f: dict) -> None:
                f"({f['psnr_vs_exr_held_out']:.2f} dB against the half EXR there); {f['psnr_33x']:.2f} dB at 33x, "
                f"{f['psnr_100x']:.2f} dB at 100x (mean of 2 probes on curves)")
     tree = f" (process tree {f['decode_tree_mb']:.0f} MB)" if f["workers"] > 1 else ""
-    click.echo(f"decode to a tiled {f['size']}x{f['size']} EXR ({f['output_mb']:.0f} MB, {f['workers']} process(es)): "
+    layout = "tiled" if f["size"] ** 2 > TILED_PIXELS else "scanline"
+    click.echo(f"decode to a {layout} {f['size']}x{f['size']} EXR ({f['output_mb']:.0f} MB, {f['workers']} process(es)): "
                f"{f['decode_s']:.1f} s, peak RSS {f['decode_hwm_mb']:.0f} MB{tree}")
