@@ -86,8 +86,8 @@ def test_torchrun_runs_the_same_command(tmp_path):
     assert load(out).field.n_features > 0
 
 
-def _ranks(parent: int) -> list[int]:
-    """Process ids of the ranks (multiprocessing children) of ``parent``, in start order."""
+def spawned_children(parent: int) -> list[int]:
+    """Process ids of the multiprocessing children (ranks, render workers) of ``parent``, in start order."""
     found = []
     for entry in os.listdir("/proc"):
         if entry.isdigit():
@@ -112,9 +112,9 @@ def test_a_rank_that_dies_stops_the_run_with_one_line_and_no_output(tmp_path):
                             env={**os.environ, "OMP_NUM_THREADS": "1"})
     try:
         start = time.monotonic()
-        while len(_ranks(proc.pid)) < 2 and time.monotonic() - start < 300 and proc.poll() is None:
+        while len(spawned_children(proc.pid)) < 2 and time.monotonic() - start < 300 and proc.poll() is None:
             time.sleep(0.2)
-        ranks = _ranks(proc.pid)
+        ranks = spawned_children(proc.pid)
         assert len(ranks) == 2, proc.stderr.read() if proc.poll() is not None else "ranks never started"
         time.sleep(5)  # let them reach the fit
         os.kill(ranks[1], signal.SIGKILL)
