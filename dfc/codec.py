@@ -24,8 +24,8 @@ from .rate import decoder_hidden, image_mesh_size, sample_mesh_size, sized_mesh
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
-__all__ = ["EncodeReport", "EncodeSettings", "check_domain", "encode_fem", "encode_frames", "encode_image",
-           "encode_samples", "encoder_info", "heldout_split", "load", "loads"]
+__all__ = ["EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem", "encode_frames",
+           "encode_image", "encode_samples", "encoder_info", "heldout_split", "load", "loads"]
 
 QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
@@ -51,7 +51,8 @@ class EncodeSettings:
     """Every knob of an encode; stored in the file's header (``encoder``) so a decode never depends on defaults.
 
     Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``. Fit
-    (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``qat_steps``, ``loss``, ``seed``, ``device``. Storage:
+    (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``qat_steps``, ``loss``, ``seed``, ``device``; out-of-core
+    fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks, recorded). Storage:
     ``feature_bits``, ``mesh_bits``.
     """
 
@@ -68,14 +69,16 @@ class EncodeSettings:
     loss: str = "auto"
     seed: int = 0
     device: str = "cpu"
+    epoch_pixels: int | None = None
+    workers: int = 1
 
 
 @dataclass
 class EncodeReport:
     """What an encode measured. ``psnr`` is of the written file decoded, against the input (for a sample set: the
-    ``heldout`` samples left out of the fit), with ``data_range``, on tone-mapped values when ``tonemapped``
-    (``dfc.metrics.quality_scale``). ``psnr_reference``: against the exact values given as ``reference``, on the
-    same scale (sample sets), else None."""
+    ``heldout`` samples left out of the fit; for an image read out of core: its ``heldout`` held-out pixels), with
+    ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``psnr_reference``:
+    against the exact values given as ``reference``, on the same scale (sample sets), else None."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -153,6 +156,83 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
                                                   "hdr": float(pixels.max()) > 1.0})
     return _finish(model, settings, info, seconds, w * h, lambda m: (pixels, render(m, w, h)), scale)
+
+
+def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
+                 callback: Callback | None = None):
+    """Encode a raster read in bands (``dfc.io.bands``: an EXR file of any size, never held whole) with its
+    discontinuity curves; data-parallel when called on every rank of a ``torch.distributed`` run.
+
+    Steps (``report.seconds``): the mesh, built on rank 0 and sent to the others (``mesh_s``); one pass over the
+    bands checking every pixel and gathering the range, mean and held-out pixels (``scan_s``, ``dfc.train.bands``);
+    the out-of-core fit (``fit_s``, ``dfc.train.fit.fit_bands``: ``settings.epoch_pixels`` stratified pixels per
+    epoch, mixed and held-out pixels left out); then rank 0 writes and measures the file (``write_s``, ``verify_s``).
+    ``report.psnr`` is of the decoded file at the held-out pixels' centres against their values (stratified, never
+    trained on; ``dfc.train.bands.HELD_OUT_PIXELS`` of them).
+
+    Returns (blob, report) on rank 0 and (None, None) on the other ranks, after checking that every rank holds the
+    same parameters (``dfc.train.distributed.check_replicas``).
+    """
+    from .geometry.pixels import EdgeMask
+    from .train import distributed
+    from .train.bands import HeldOut, scan
+    from .train.fit import MAX_DROPPED_FRACTION, fit_bands
+
+    settings = settings or EncodeSettings()
+    rank, world = distributed.world()
+    h, w = source.height, source.width
+    channels = list(source.channels)
+    curves = check_domain(curves, w, h, fit_curves)
+    clock = time.perf_counter()
+    mesh = _on_rank0(lambda: sized_mesh(curves, settings, channels))
+    seconds = {"mesh_s": time.perf_counter() - clock}
+    clock = time.perf_counter()
+    mixed, held_out = EdgeMask(mesh, h, w), HeldOut(w, h, seed=settings.seed)
+    stats = scan(source, mixed=mixed, held_out=held_out, rank=rank, world=world)
+    stats.lo, stats.hi = distributed.reduce(stats.lo, "min"), distributed.reduce(stats.hi, "max")
+    stats.total, stats.log_total = distributed.reduce(stats.total), distributed.reduce(stats.log_total)
+    stats.count, stats.mixed = (int(v) for v in distributed.reduce(np.array([stats.count, stats.mixed])))
+    held_xy, held_values = distributed.gather_rows(stats.held_xy), distributed.gather_rows(stats.held_values)
+    seconds["scan_s"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    scale = quality_scale(np.array([stats.lo.min(), stats.hi.max()]))
+    model = fit_bands(source, mesh, stats, steps=settings.steps, batch_size=settings.batch_size,
+                      epoch_pixels=settings.epoch_pixels,
+                      mixed=mixed if stats.mixed <= MAX_DROPPED_FRACTION * stats.count else None, held_out=held_out,
+                      dim=settings.dim, seed=settings.seed, loss=settings.loss, device=settings.device,
+                      qat_steps=settings.qat_steps, feature_bits=settings.feature_bits, callback=callback,
+                      channels=channels, data_range=scale.data_range, tonemap=scale.tonemap)
+    seconds["fit_s"] = time.perf_counter() - clock
+    distributed.check_replicas(model)
+    distributed.barrier()
+    if rank != 0:
+        return None, None
+    settings = replace(settings, workers=world)
+    info = encoder_info(settings, curves.source, {"input": f"image {w}x{h} (bands)", "pixels": w * h,
+                                                  "hdr": float(stats.hi.max()) > 1.0, "held_out": len(held_xy)})
+    centres = (held_xy + 0.5) * np.array([(mesh.domain[2] - mesh.domain[0]) / w, (mesh.domain[3] - mesh.domain[1]) / h])
+    centres += np.array(mesh.domain[:2])
+    blob, report = _finish(model, settings, info, seconds, w * h, lambda m: (held_values, values_at(
+        m, centres, device=settings.device, block=QUERY_BLOCK)), scale)
+    report.heldout = len(held_xy)
+    return blob, report
+
+
+def _on_rank0(build):
+    """``build()`` run on rank 0 and its result (or its ``DfcError``) sent to every rank."""
+    from .errors import DfcError
+    from .train import distributed
+
+    result = None
+    if distributed.world()[0] == 0:
+        try:
+            result = build()
+        except DfcError as e:
+            result = e
+    result = distributed.broadcast_object(result)
+    if isinstance(result, DfcError):
+        raise result
+    return result
 
 
 def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = None, *,
@@ -307,8 +387,9 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
     from .io.container import encode_dfield
 
     clock = time.perf_counter()
-    blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits)
-    decoded = loads(blob, device=settings.device)
+    # the mesh was validated once, when rate control built it (``dfc.rate.build_mesh``); its bytes decode to it exactly
+    blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits, mesh_validated=True)
+    decoded = loads(blob, device=settings.device, validate_mesh=False)
     seconds["write_s"] = time.perf_counter() - clock
     clock = time.perf_counter()
     reference, test = truth(decoded)

@@ -65,7 +65,7 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int)
     model = FieldModel(FeatureField(mesh, dim=settings.dim, seed=settings.seed), channels)
     with torch.no_grad():
         model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
-    blob, _ = encode_dfield(to_contents(model), feature_bits=settings.feature_bits)
+    blob, _ = encode_dfield(to_contents(model), feature_bits=settings.feature_bits, mesh_validated=True)
     return len(blob), mesh
 
 

@@ -57,17 +57,44 @@ def window_shape(window, longer: int) -> tuple[int, int]:
     return max(1, round(w * s)), max(1, round(h * s))
 
 
-def window_points(window, width: int, height: int, spp: int = 1, *, rows: tuple[int, int] | None = None) -> np.ndarray:
-    """(h · width · spp, 2) float64 sample points of rows ``[r0, r1)`` (default all, h = r1 − r0) of a
-    ``width × height`` render of ``window``: row-major, a pixel's ``spp`` points (``pixel_offsets``) adjacent."""
+def window_points(window, width: int, height: int, spp: int = 1, *, rows: tuple[int, int] | None = None,
+                  cols: tuple[int, int] | None = None) -> np.ndarray:
+    """(h · w · spp, 2) float64 sample points of rows ``[r0, r1)`` and columns ``[c0, c1)`` (default all;
+    h = r1 − r0, w = c1 − c0) of a ``width × height`` render of ``window``: row-major, a pixel's ``spp`` points
+    (``pixel_offsets``) adjacent. A region's points are exactly those of the whole render at its pixels."""
     x0, y0, x1, y1 = window
     r0, r1 = rows or (0, height)
+    c0, c1 = cols or (0, width)
     off = pixel_offsets(spp)
-    xs = x0 + (np.arange(width)[:, None] + off[None, :, 0]) * ((x1 - x0) / width)  # (W, spp)
+    xs = x0 + (np.arange(c0, c1)[:, None] + off[None, :, 0]) * ((x1 - x0) / width)  # (w, spp)
     ys = y0 + (np.arange(r0, r1)[:, None] + off[None, :, 1]) * ((y1 - y0) / height)  # (h, spp)
-    X = np.broadcast_to(xs[None], (r1 - r0, width, spp))
-    Y = np.broadcast_to(ys[:, None], (r1 - r0, width, spp))
+    X = np.broadcast_to(xs[None], (r1 - r0, c1 - c0, spp))
+    Y = np.broadcast_to(ys[:, None], (r1 - r0, c1 - c0, spp))
     return np.stack([X.ravel(), Y.ravel()], axis=1)
+
+
+def render_region(model, width: int, height: int, window=None, *, rows: tuple[int, int], cols: tuple[int, int],
+                  spp: int = 1, t=None, max_points: int = MAX_POINTS) -> np.ndarray:
+    """Pixels (r1 − r0, c1 − c0, C) float32 of rows ``[r0, r1)`` and columns ``[c0, c1)`` of a ``width × height``
+    render of ``window``, evaluated ``max_points`` at a time (whole rows of the region per call). The values do not
+    depend on how a render is cut into regions of whole rows of the same width.
+
+    model : callable (N, 2) float64 tensor [, t] -> (N, C) tensor, e.g. ``FieldModel``
+    """
+    if width < 1 or height < 1:
+        raise ValueError(f"output size must be at least 1×1, got {width}×{height}")
+    window = check_window(window, model.field.mesh.domain)
+    (r0, r1), (c0, c1) = rows, cols
+    step = max(1, min(r1 - r0, max_points // ((c1 - c0) * spp)))
+    device = model.field.bank.device
+    out = []
+    with torch.no_grad():
+        for a in range(r0, r1, step):
+            b = min(r1, a + step)
+            xy = torch.from_numpy(window_points(window, width, height, spp, rows=(a, b), cols=(c0, c1))).to(device)
+            vals = model(xy, t) if t is not None else model(xy)
+            out.append(vals.float().reshape(b - a, c1 - c0, spp, -1).mean(dim=2).cpu().numpy())
+    return np.concatenate(out)
 
 
 def row_blocks(
@@ -79,16 +106,11 @@ def row_blocks(
     """
     if width < 1 or height < 1:
         raise ValueError(f"output size must be at least 1×1, got {width}×{height}")
-    window = check_window(window, model.field.mesh.domain)
     rows = max(1, min(height, max_points // (width * spp)))
-    device = model.field.bank.device
-    with torch.no_grad():
-        for r0 in range(0, height, rows):
-            r1 = min(height, r0 + rows)
-            xy = torch.from_numpy(window_points(window, width, height, spp, rows=(r0, r1))).to(device)
-            vals = model(xy, t) if t is not None else model(xy)
-            block = vals.float().reshape(r1 - r0, width, spp, -1).mean(dim=2)
-            yield r0, block.cpu().numpy()
+    for r0 in range(0, height, rows):
+        r1 = min(height, r0 + rows)
+        yield r0, render_region(model, width, height, window, rows=(r0, r1), cols=(0, width), spp=spp, t=t,
+                                max_points=max_points)
 
 
 def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_POINTS) -> np.ndarray:

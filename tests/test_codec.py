@@ -220,3 +220,24 @@ def test_small_images_get_a_mesh_and_decoder_sized_to_them(scene, one_thread):
     assert report.n_triangles < 300 and len(blob) < 64 * 64 * 3  # smaller than the 8-bit pixels
     explicit, _ = encode_image(image, curves, EncodeSettings(steps=5, batch_size=512, max_triangles=1000))
     assert len(loads(explicit).field.mesh.triangles) > 600  # an explicit size is kept
+
+
+def test_an_encode_validates_its_mesh_once(scene, monkeypatch):
+    from dataclasses import replace
+
+    from dfc.codec import encode_bands
+    from dfc.geometry.mesh import Mesh
+    from dfc.io.bands import ArrayBands
+
+    calls = []
+    validate = Mesh.validate
+    monkeypatch.setattr(Mesh, "validate", lambda mesh: (calls.append(mesh.n_triangles), validate(mesh))[1])
+    image = scene.render(64, 64, spp=1)
+    small = replace(scene.curves, domain=(0.0, 0.0, 64.0, 64.0), control_points=scene.curves.control_points / 4.0)
+    settings = EncodeSettings(steps=2, batch_size=256, max_triangles=400)
+    encode_image(image, small, settings)
+    assert len(calls) == 1
+    blob, _ = encode_bands(ArrayBands(image, ["R", "G", "B"]), small, settings)
+    assert len(calls) == 2
+    loads(blob)  # a decoder validates what it reads
+    assert len(calls) == 3

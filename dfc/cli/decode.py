@@ -43,17 +43,22 @@ from .output import FORMAT_OPTION, check_time, output_format, plan_render, rende
 @click.option("--frames", "n_frames", type=click.IntRange(min=1),
               help="Render N frames evenly spaced over the file's time axis into OUTPUT, a printf pattern with one "
                    "integer field (e.g. out_%04d.exr), numbered from 0.")
-@click.option("--device", default="cpu", show_default=True, help="torch device for rendering.")
+@click.option("--device", default="cpu", show_default=True,
+              help="torch device for rendering; with --workers and cuda, worker k renders on cuda:k mod GPUs.")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Processes rendering tiles (or row blocks) in parallel; the output is the same for any count.")
 @threads_option
 @json_option
 @quiet_option
-def command(input_path, output, fmt, size, window, spp, full_float, t, n_frames, device, json_path, quiet):
+def command(input_path, output, fmt, size, window, spp, full_float, t, n_frames, device, workers, json_path, quiet):
     """Render IN (- reads standard input) to OUTPUT. Pixels sample the field at their centres
-    (spec/conventions.md), so any size and any window of the domain can be rendered; large outputs are written in
-    row blocks with bounded memory. Before rendering, the output's size, its bytes at most and the estimated time
-    are printed, and a render the disk cannot hold is refused. An existing OUTPUT is replaced, atomically, once the
-    new file is complete."""
+    (spec/conventions.md), so any size and any window of the domain can be rendered. Memory stays bounded for any
+    size: EXR outputs above 4096 x 4096 pixels are written as tiled EXR tile by tile (up to 1048576 pixels per side),
+    smaller ones and PNG (up to 65536 per side) in row blocks. Before rendering, the output's size, its bytes at most
+    and the estimated time are printed, and a render the disk cannot hold is refused. An existing OUTPUT is
+    replaced, atomically, once the new file is complete."""
     from ..codec import load, loads
+    from ..io.bands import MAX_BAND_SIDE
     from ..render import check_window
 
     if n_frames is not None and t is not None:
@@ -62,10 +67,16 @@ def command(input_path, output, fmt, size, window, spp, full_float, t, n_frames,
         raise click.UsageError("--frames writes one file per frame: give a pattern such as out_%04d.exr, not -")
     pattern = check_pattern(output) if n_frames is not None else None
     fmt = output_format(output, fmt, full_float)
-    check_size(size)
+    if fmt == "png":
+        check_size(size, why="; PNG output stops there: write .exr (tiled) for larger renders")
+    else:
+        check_size(size, limit=MAX_BAND_SIDE)
+    if workers > 1 and input_path == "-":
+        raise click.UsageError("--workers loads IN in each worker: give a file, not - (standard input)")
     device = check_device(device)
     model = loads(binary_stream(sys.stdin).read(), device=device) if input_path == "-" else \
         load(input_path, device=device)
+    devices = _worker_devices(device, workers)
     domain = model.field.mesh.domain
     try:
         window = check_window(window, domain)
@@ -80,17 +91,19 @@ def command(input_path, output, fmt, size, window, spp, full_float, t, n_frames,
                 quiet=quiet)
     outputs = [pattern % k for k in range(len(times))] if pattern is not None else [output]
     for path, tk in zip(outputs, times):
-        render_to_file(model, path, size, window, spp=spp, half=not full_float, t=tk, quiet=quiet, fmt=fmt)
+        layout = render_to_file(model, path, size, window, spp=spp, half=not full_float, t=tk, quiet=quiet, fmt=fmt,
+                                workers=workers, source=input_path, devices=devices)
     err = stdout_taken(output, json_path)
     if pattern is None:
-        click.echo(f"wrote {shown(output)}: {size[0]}x{size[1]} of window {tuple(round(v, 6) for v in window)}",
-                   err=err)
+        layout_note = f" ({layout} EXR)" if fmt == "exr" else ""
+        click.echo(f"wrote {shown(output)}: {size[0]}x{size[1]} of window {tuple(round(v, 6) for v in window)}"
+                   f"{layout_note}", err=err)
     else:
         click.echo(f"wrote {len(times)} frames {outputs[0]} .. {outputs[-1]}: {size[0]}x{size[1]}, "
                    f"t = {times[0]:g} .. {times[-1]:g}", err=err)
     if json_path:
         write_json(json_path, {"outputs": outputs, "format": fmt, "size": list(size), "window": list(window),
-                               "spp": spp, "times": None if times == [None] else times,
+                               "spp": spp, "layout": layout, "times": None if times == [None] else times,
                                "bytes": None if output == "-" else [os.path.getsize(p) for p in outputs]})
 
 
@@ -109,3 +122,14 @@ def frame_times(model, n: int) -> list[float]:
     if times is None:
         raise click.BadParameter("this file has no time axis", param_hint="'--frames'")
     return [float(v) for v in np.linspace(times[0], times[-1], n)] if n > 1 else [float(times[0])]
+
+
+def _worker_devices(device: str, workers: int) -> list[str]:
+    """Devices of the render workers: ``device`` for each, or with CUDA every visible GPU in turn from ``device``'s."""
+    import torch
+
+    if not device.startswith("cuda") or workers == 1:
+        return [device]
+    first = torch.device(device).index or 0
+    count = torch.cuda.device_count()
+    return [f"cuda:{(first + k) % count}" for k in range(workers)]

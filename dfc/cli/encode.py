@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import click
@@ -91,11 +92,18 @@ def _times(ctx, param, value):
 @click.option("--reference", "reference_path", type=click.Path(exists=True, dir_okay=False),
               help="Sample sets: exact values on a pixel grid over the domain (.exr, or .npz as dfc wos --reference "
                    "writes); the summary adds the file's PSNR against them.")
+@click.option("--epoch-pixels", type=click.IntRange(min=1),
+              help="Image input read out of core: stratified pixels drawn per epoch, band by band  [default: sized to "
+                   "512 MiB of samples, at most every pixel]. EXR images above 4096 x 4096 pixels are always read so.")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Image input: train data-parallel on N local ranks (torch.distributed: gloo on CPU, NCCL with "
+                   "--device cuda, one GPU per rank), each reading its own bands; --batch-size is split between them. "
+                   "Across machines use torchrun (README).")
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
             dim, feature_bits, mesh_bits, loss, seed, device, channels, fit_curves_to_image, times, fields,
-            fem_sampling, reference_path, json_path, quiet):
+            fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
     """Encode INPUT with the discontinuity CURVES into OUTPUT. INPUT is an EXR/PNG/JPEG image; a .npz sample set
     or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
     triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling). Files
@@ -106,9 +114,10 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     it and written. The summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written
     file, decoded again, against the input at its pixel centres (FEM nodes; every frame of a sequence), for HDR
     images on tone-mapped values x/(1+x); for a sample set against the 10 % of the samples left out of the fit,
-    and against --reference. An existing OUTPUT is replaced, atomically, once the new file is complete.
+    and against --reference; for an image read out of core (--epoch-pixels, --workers, torchrun, or an EXR above
+    4096 x 4096) at its held-out pixels. An existing OUTPUT is replaced, atomically, once the new file is complete.
     """
-    from ..codec import EncodeSettings, encode_fem, encode_frames, encode_image, encode_samples
+    from ..codec import EncodeSettings
     from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
@@ -131,27 +140,29 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                                   target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size,
                                   dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
-                                  device=check_device(device))
+                                  device=check_device(device), epoch_pixels=epoch_pixels, workers=workers)
+        if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
+            raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
+                                     param_hint="'--workers'")
+        if workers > 1 and output == "-":
+            raise click.UsageError("--workers writes the file from its first rank: give -o OUT.dfield, not -")
         curves = read_curves_checked(curves_path, quiet)
-        signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
-                             fields.split(",") if fields else None)
         input_bytes = sum(os.path.getsize(p) for p in paths)
-    reference = _read_reference(reference_path, curves.domain) if reference_path else None
-    with progress_bar(settings.steps, "fit", quiet) as bar:
-        def callback(step, loss_value, psnr):
-            bar.update(1)
-            if step % 25 == 0:
-                bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
-
-        if kind == "samples":
-            blob, report = encode_samples(signal, curves, settings, reference=reference, callback=callback)
-        elif kind == "fem":
-            blob, report = encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
-        elif kind == "frames":
-            blob, report = encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+        if _out_of_core(kind, paths, epoch_pixels, workers):
+            job = BandJob(paths[0], channels.split(",") if channels else None, curves, settings,
+                          fit_curves_to_image, output, quiet)
+            blob, report = run_band_job(job)  # read band by band while the input (or its spooled copy) is there
+            if report is None:  # a rank other than 0 of a torchrun run: rank 0 writes and reports
+                return
         else:
-            blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
-    if output == "-":
+            signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
+                                 fields.split(",") if fields else None)
+            reference = _read_reference(reference_path, curves.domain) if reference_path else None
+            blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
+                                             reference, quiet)
+    if blob is None:  # --workers: rank 0 wrote the file
+        pass
+    elif output == "-":
         sys.stdout.flush()
         out = binary_stream(sys.stdout)
         out.write(blob)
@@ -182,6 +193,9 @@ def _summary(output: str, kind: str, report, reference_path, err: bool) -> None:
     elif kind == "samples":
         lines.append(f"PSNR of the decoded file against the samples it was fitted to (too few to hold some out): "
                      f"{report.psnr:.2f} dB ({scale})")
+    elif report.heldout:
+        lines.append(f"PSNR of the decoded file against the input at {report.heldout} held-out pixels (never trained "
+                     f"on): {report.psnr:.2f} dB ({scale})")
     else:
         lines.append(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB ({scale})")
     if report.psnr_reference is not None:
@@ -190,6 +204,142 @@ def _summary(output: str, kind: str, report, reference_path, err: bool) -> None:
     lines.append("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in report.seconds.items()))
     for line in lines:
         click.echo(line, err=err)
+
+
+def _fit_callback(bar):
+    """The fit's progress: one tick per step, loss and batch PSNR every 25 steps."""
+    def callback(step, loss_value, psnr):
+        bar.update(1)
+        if step % 25 == 0:
+            bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
+
+    return callback
+
+
+def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, quiet):
+    """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
+    from ..codec import encode_fem, encode_frames, encode_image, encode_samples
+
+    with progress_bar(settings.steps, "fit", quiet) as bar:
+        callback = _fit_callback(bar)
+        if kind == "samples":
+            return encode_samples(signal, curves, settings, reference=reference, callback=callback)
+        if kind == "fem":
+            return encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
+        if kind == "frames":
+            return encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+        return encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+
+
+def _gpus() -> int:
+    import torch
+
+    return torch.cuda.device_count()
+
+
+IN_MEMORY_PIXELS = 1 << 24
+"""Image inputs with more pixels than this (4096²) are encoded out of core (``dfc.codec.encode_bands``)."""
+
+
+def _out_of_core(kind: str, paths, epoch_pixels, workers: int) -> bool:
+    """Whether an input is encoded out of core: an image with --epoch-pixels or --workers, under torchrun, or an
+    EXR above ``IN_MEMORY_PIXELS``; ``click.UsageError`` for those options with other inputs."""
+    from ..io.bands import ExrBands
+    from ..io.sniff import file_kind
+    from ..train.distributed import launched
+
+    asked = epoch_pixels is not None or workers > 1 or launched()
+    if kind != "image":
+        if asked:
+            raise click.UsageError(f"--epoch-pixels, --workers and torchrun apply to one image input, not {kind}")
+        return False
+    if file_kind(paths[0]) == "exr":
+        bands = ExrBands(paths[0])  # the header: a damaged or truncated file is refused before any rank starts
+        return asked or bands.width * bands.height > IN_MEMORY_PIXELS
+    return asked
+
+
+@dataclass
+class BandJob:
+    """An out-of-core encode as each rank runs it: the input, its curves, the settings, where rank 0 writes."""
+
+    input_path: str
+    channels: list[str] | None
+    curves: object
+    settings: object
+    fit_curves: bool
+    output: str
+    quiet: bool
+
+
+def run_band_job(job: BandJob):
+    """Run an out-of-core encode here (one process), as a rank of this torchrun run, or on ``job.settings.workers``
+    local ranks (``dfc.train.distributed.launch``, rank 0 writing the file). Returns (blob to write or None,
+    report); (None, None) on ranks other than 0."""
+    from ..train import distributed
+
+    if job.settings.workers > 1:
+        return None, distributed.launch(job.settings.workers, rank_main, job)[0]
+    if distributed.launched():
+        return _as_rank(job)
+    return _encode_bands(job)
+
+
+def rank_main(job: BandJob):
+    """Entry point of each local rank of ``dfc encode --workers N``: rank 0 writes the file and returns the report.
+    A rank ends when the launching process does, however that ends (Linux: the parent-death signal)."""
+    _end_with_parent()
+    blob, report = _as_rank(job)
+    if blob is not None:
+        write_bytes_atomic(job.output, blob)
+    return report
+
+
+def _end_with_parent() -> None:
+    """SIGTERM ends this process as it ends the CLI, and Linux sends it when the parent dies
+    (``prctl(PR_SET_PDEATHSIG)``)."""
+    import ctypes
+    import signal
+    import sys
+
+    from . import _terminate
+
+    signal.signal(signal.SIGTERM, _terminate)  # unwinds, so the atomic writers remove their temporary files
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+
+
+def _as_rank(job: BandJob):
+    """``_encode_bands`` inside the process group of this run (joined here, left at the end). The progress bar
+    locks with a thread lock: tqdm's default holds a named semaphore, which a killed rank would leave behind (and
+    Python's resource tracker would warn about after the run's one error line)."""
+    import threading
+
+    from tqdm import tqdm
+
+    from ..train import distributed
+
+    tqdm.set_lock(threading.RLock())
+    job = replace(job, settings=replace(job.settings, device=distributed.init(job.settings.device)))
+    try:
+        return _encode_bands(job)
+    except RuntimeError as e:
+        lost = None if isinstance(e, distributed.RankError) else distributed.lost_rank(e)
+        if lost is None:
+            raise
+        raise lost from None
+    finally:
+        distributed.finish()
+
+
+def _encode_bands(job: BandJob):
+    from ..codec import encode_bands
+    from ..io.bands import open_bands
+    from ..train.distributed import world
+
+    source = open_bands(job.input_path, job.channels)
+    with progress_bar(job.settings.steps, "fit", job.quiet or world()[0] != 0) as bar:
+        return encode_bands(source, job.curves, job.settings, fit_curves=job.fit_curves, callback=_fit_callback(bar))
 
 
 def _read_reference(path: str, domain):

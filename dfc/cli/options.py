@@ -52,9 +52,10 @@ def positive(ctx, param, value):
     return value
 
 
-def check_size(size, param_hint="'--size'") -> tuple[int, int] | None:
-    if size is not None and not all(1 <= v <= MAX_IMAGE_SIDE for v in size):
-        raise click.BadParameter(f"width and height must be in 1..{MAX_IMAGE_SIDE}, got {size[0]}x{size[1]}",
+def check_size(size, param_hint="'--size'", *, limit: int = MAX_IMAGE_SIDE, why: str = "") -> tuple[int, int] | None:
+    """``size`` when both sides are in 1..``limit``; else ``click.BadParameter`` (``why`` appended)."""
+    if size is not None and not all(1 <= v <= limit for v in size):
+        raise click.BadParameter(f"width and height must be in 1..{limit}, got {size[0]}x{size[1]}{why}",
                                  param_hint=param_hint)
     return size
 

@@ -1,6 +1,7 @@
-"""Rendering a ``.dfield`` to an EXR or PNG file in row blocks; shared by ``dfc decode`` and ``dfc zoom``: the
-output's format (by extension, or ``--format`` for ``-``, standard output), the plan printed before a render starts
-(size, bytes, estimated time) and the free-space check."""
+"""Rendering a ``.dfield`` to an EXR or PNG file (``dfc.render_file``: tiled EXR when large, in worker processes
+with ``--workers``) with a progress bar; shared by ``dfc decode`` and ``dfc zoom``: the output's format (by extension,
+or ``--format`` for ``-``, standard output), the plan printed before a render starts (size, bytes, estimated time)
+and the free-space check."""
 
 from __future__ import annotations
 
@@ -85,33 +86,21 @@ def estimate_seconds(model, size: tuple[int, int], window, *, spp: int, t) -> fl
 
 
 def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: int, half: bool, t, quiet: bool,
-                   fmt: str | None = None) -> None:
-    """Stream a ``size`` render of ``window`` into ``output`` (.exr: half or float; .png: 8-bit sRGB, tone-mapped
-    for HDR files; ``-``: standard output in ``fmt``). Memory stays bounded by the render block; the file appears
-    only when complete."""
-    from ..io.image import ExrBlockWriter, PngBlockWriter
-    from ..render import row_blocks
+                   fmt: str | None = None, workers: int = 1, source=None, devices=None) -> str:
+    """Render ``window`` at ``size`` into ``output`` (.exr: half or float, tiled when large; .png: 8-bit sRGB,
+    tone-mapped for HDR files; ``-``: standard output in ``fmt``), ``workers`` processes rendering regions of
+    ``source`` (``dfc.render_file.write_render``). Memory stays bounded; the file appears only when complete.
+    Returns the layout written ("tiled" or "scanline")."""
+    from ..render_file import write_render
 
     fmt = fmt or os.path.splitext(output)[1].lower().lstrip(".")
-    width, height = size
-    channels = model.channels
-    if fmt == "png" and len(channels) > 4:
-        raise click.UsageError(f"PNG holds 1 to 4 channels; this file has {len(channels)}: write .exr")
-    with stdout_file(output, "." + fmt) as path:
-        if fmt == "png":
-            writer = PngBlockWriter(path, width, height, len(channels), hdr=_is_hdr(model))
-        else:
-            writer = ExrBlockWriter(path, width, height, channels, half=half)
-        with writer, progress_bar(height, "render", quiet, unit="row") as bar:
-            for y0, block in row_blocks(model, width, height, window, spp=spp, t=t):
-                writer.write_rows(y0, block)
-                bar.update(len(block))
+    with stdout_file(output, "." + fmt) as path, progress_bar(0, "render", quiet, unit="region") as bar:
+        def callback(done, total):
+            bar.total = total
+            bar.update(1)
 
-
-def _is_hdr(model) -> bool:
-    """HDR files (log transform, or an HDR input recorded by the encoder) are tone-mapped into PNG."""
-    encoder = getattr(model, "header", {}).get("encoder", {})
-    return model.transform == "log" or encoder.get("hdr") is True
+        return write_render(model, path, size, window, spp=spp, half=half, t=t, workers=workers, source=source,
+                            devices=devices, callback=callback)
 
 
 def _bytes(n: int) -> str:

@@ -327,15 +327,16 @@ def _encode_mlp(mlp: dict[str, np.ndarray], level: int) -> bytes:
 
 
 # ----------------------------------------------------------------------------------------------- public API
-def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8,
-                  compression_level: int = 19) -> tuple[bytes, dict[str, int]]:
+def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8, compression_level: int = 19,
+                  mesh_validated: bool = False) -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
 
     ``contents.mesh`` should be ``roundtrip_mesh(mesh, bits)``, the view the features were fitted on: it is
     stored with Draco at the precision it came from, and any other valid mesh losslessly (raw), so the file
     always decodes to exactly ``contents.mesh``. ``feature_bits`` in 1..16; ``compression_level`` is the
     zstd level. Raises ``FormatError`` when the contents would make an invalid file and ``MeshError`` when
-    the mesh is invalid.
+    the mesh is invalid. ``mesh_validated``: the mesh came from ``roundtrip_mesh`` (validated there), so it is not
+    validated again (``encode_roundtripped``).
     """
     F = np.asarray(contents.features)
     if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
@@ -350,7 +351,7 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8,
         text = json.dumps(header, allow_nan=False, ensure_ascii=False).encode("utf-8")
     except (TypeError, ValueError) as exc:
         raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
-    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level)
+    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level, validated=mesh_validated)
     parts = [(b"HEAD", compress(text, compression_level)), (b"MESH", mesh_data), (b"TOPO", topo_data),
              (b"FEAT", _encode_features(F.astype(np.float32), feature_bits, compression_level)),
              (b"MLPW", _encode_mlp(contents.mlp, compression_level)), (b"DEND", b"")]
@@ -370,14 +371,15 @@ def write_dfield(path: str | os.PathLike, contents: DfieldContents, *, feature_b
     return sizes
 
 
-def decode_dfield(buf: bytes) -> DfieldContents:
-    """Parse a whole ``.dfield`` file held in memory; raise ``FormatError`` on any violation of the spec."""
+def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
+    """Parse a whole ``.dfield`` file held in memory; raise ``FormatError`` on any violation of the spec.
+    ``validate_mesh=False`` skips ``Mesh.validate`` (only for bytes just written from a validated mesh)."""
     chunks, _ = _split_chunks(buf)
     feat = chunks[b"FEAT"]
     S = _feat_info(feat)["slices"]
     header = _parse_header(bytes(chunks[b"HEAD"]))
     _check_header(header, S)
-    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"])
+    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"], full_validate=validate_mesh)
     features = _decode_features(feat)
     _check_rows(mesh, features.shape[1])
     return DfieldContents(header=header, mesh=mesh, features=features, mlp=_decode_mlp(chunks[b"MLPW"]))

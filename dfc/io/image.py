@@ -56,6 +56,8 @@ __all__ = [
     "ExrBlockWriter",
     "Image",
     "PngBlockWriter",
+    "exr_header_bytes",
+    "exr_zip_block",
     "linear_to_srgb",
     "read_image",
     "srgb_to_linear",
@@ -208,20 +210,33 @@ def _flush_c_streams() -> None:
         ctypes.CDLL(None).fflush(None)
 
 
-def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
+def read_exr_header(path) -> dict:
+    """The header of an OpenEXR file (``OpenEXR.File(header_only=True)``), checked as far as it goes: readable, flat
+    (scanline or tiled) storage. Raises ``InputError``. Other readers of a file (``dfc.io.bands``) ask this first:
+    older entry points of the bindings crash on some damaged headers that this one refuses."""
     import OpenEXR
 
     try:
         with library_output_silenced(), OpenEXR.File(str(path), header_only=True) as f:
-            header = f.header()
-            storage = header.get("type", OpenEXR.scanlineimage)
-            (dx0, dy0), (dx1, dy1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
-            (wx0, wy0), (wx1, wy1) = (np.asarray(v, dtype=np.int64) for v in header["displayWindow"])
-            sampling = [(c.name, c.xSampling, c.ySampling) for c in header["channels"]]
+            header = dict(f.header())
     except Exception as e:  # noqa: BLE001 — the bindings raise RuntimeError, ValueError, UnicodeDecodeError, ...
         raise InputError(f"{path}: not a readable OpenEXR file ({type(e).__name__}: {e})") from None
+    missing = [name for name in ("dataWindow", "displayWindow", "channels") if name not in header]
+    if missing:
+        raise InputError(f"{path}: damaged OpenEXR header (no {', '.join(missing)})")
+    storage = header.get("type", OpenEXR.scanlineimage)
     if storage not in (OpenEXR.scanlineimage, OpenEXR.tiledimage):
         raise InputError(f"{path}: unsupported EXR storage {storage} (deep images are not images of values)")
+    return header
+
+
+def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
+    import OpenEXR
+
+    header = read_exr_header(path)
+    (dx0, dy0), (dx1, dy1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
+    (wx0, wy0), (wx1, wy1) = (np.asarray(v, dtype=np.int64) for v in header["displayWindow"])
+    sampling = [(c.name, c.xSampling, c.ySampling) for c in header["channels"]]
     _check_size(path, int(dx1 - dx0 + 1), int(dy1 - dy0 + 1))
     _check_size(path, int(wx1 - wx0 + 1), int(wy1 - wy0 + 1))
     sub = [name for name, sx, sy in sampling if (sx, sy) != (1, 1)]
@@ -397,6 +412,44 @@ class _BlockWriter:
         self.next_row += len(block)
 
 
+def exr_zip_block(rows: np.ndarray, order: list[int], dtype: np.dtype) -> bytes:
+    """The data of one ZIP-compressed OpenEXR chunk (a scanline block or a tile): rows (h, w, C) float values,
+    ``order`` the file's channel order (indices into C, channels sorted by name), ``dtype`` ``<f2`` or ``<f4``.
+    Stored uncompressed when compression does not help, as the format allows."""
+    # per scanline, per channel in file order, ``w`` little-endian values
+    raw = np.ascontiguousarray(rows[:, :, order].transpose(0, 2, 1), dtype=dtype).view(np.uint8).ravel()
+    t = np.concatenate([raw[0::2], raw[1::2]])  # OpenEXR's ZIP byte reordering ...
+    t[1:] = (t[1:].astype(np.int16) - t[:-1] + 128).astype(np.uint8)  # ... and delta predictor
+    packed = zlib.compress(t.tobytes(), 4)
+    return packed if len(packed) < len(raw) else raw.tobytes()
+
+
+def exr_header_bytes(width: int, height: int, channels: list[str], order: list[int], half: bool,
+                     extra: list[tuple[str, str, bytes]] = (), flags: int = 0) -> bytes:
+    """Magic, version and header attributes of a single-part OpenEXR file with ZIP compression, ``channels`` in file
+    ``order``, data and display window ``[0, width) × [0, height)``, ``extra`` attributes (name, type, value) and
+    version ``flags`` (e.g. 0x200 for tiles); the long-names flag is added when a name needs it."""
+    long_names = any(len(c.encode()) > 31 for c in channels)
+    chlist = b"".join(
+        channels[k].encode() + b"\0" + struct.pack("<iB3xii", 1 if half else 2, 0, 1, 1) for k in order
+    ) + b"\0"
+    box = struct.pack("<iiii", 0, 0, width - 1, height - 1)
+    attrs = [
+        ("channels", "chlist", chlist),
+        ("compression", "compression", bytes([3])),  # ZIP_COMPRESSION
+        ("dataWindow", "box2i", box),
+        ("displayWindow", "box2i", box),
+        ("lineOrder", "lineOrder", b"\0"),
+        ("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+        ("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
+        ("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+        *extra,
+    ]
+    header = struct.pack("<ii", 20000630, 2 | flags | (0x400 if long_names else 0))
+    header += b"".join(n.encode() + b"\0" + t.encode() + b"\0" + struct.pack("<i", len(v)) + v for n, t, v in attrs)
+    return header + b"\0"
+
+
 class ExrBlockWriter(_BlockWriter):
     """Streamed scanline EXR (ZIP, 16 rows per chunk, INCREASING_Y), written atomically.
 
@@ -408,7 +461,6 @@ class ExrBlockWriter(_BlockWriter):
     """
 
     ROWS_PER_CHUNK = 16
-    _ZIP = 3  # ZIP_COMPRESSION
 
     def __init__(self, path, width: int, height: int, channels: list[str], *, half: bool = True):
         channels = [str(c) for c in channels]
@@ -423,24 +475,7 @@ class ExrBlockWriter(_BlockWriter):
         self._offsets = np.zeros(self.n_chunks, dtype="<u8")
 
     def _start(self) -> None:
-        long_names = any(len(c.encode()) > 31 for c in self.channels)
-        chlist = b"".join(
-            self.channels[k].encode() + b"\0" + struct.pack("<iB3xii", 1 if self.half else 2, 0, 1, 1) for k in self.order
-        ) + b"\0"
-        box = struct.pack("<iiii", 0, 0, self.width - 1, self.height - 1)
-        attrs = [
-            ("channels", "chlist", chlist),
-            ("compression", "compression", bytes([self._ZIP])),
-            ("dataWindow", "box2i", box),
-            ("displayWindow", "box2i", box),
-            ("lineOrder", "lineOrder", b"\0"),
-            ("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
-            ("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
-            ("screenWindowWidth", "float", struct.pack("<f", 1.0)),
-        ]
-        header = struct.pack("<ii", 20000630, 2 | (0x400 if long_names else 0))
-        header += b"".join(n.encode() + b"\0" + t.encode() + b"\0" + struct.pack("<i", len(v)) + v for n, t, v in attrs)
-        self._file.write(header + b"\0")
+        self._file.write(exr_header_bytes(self.width, self.height, self.channels, self.order, self.half))
         self._table_at = self._file.tell()
         self._file.write(self._offsets.tobytes())  # placeholder, rewritten in _finish
 
@@ -456,12 +491,7 @@ class ExrBlockWriter(_BlockWriter):
         self._pending = self._pending[full:].copy()
 
     def _chunk(self, y: int, rows: np.ndarray) -> None:
-        # per scanline, per channel in file order, ``width`` little-endian values
-        raw = np.ascontiguousarray(rows[:, :, self.order].transpose(0, 2, 1), dtype=self.dtype).view(np.uint8).ravel()
-        t = np.concatenate([raw[0::2], raw[1::2]])  # OpenEXR's ZIP byte reordering ...
-        t[1:] = (t[1:].astype(np.int16) - t[:-1] + 128).astype(np.uint8)  # ... and delta predictor
-        packed = zlib.compress(t.tobytes(), 4)
-        data = packed if len(packed) < len(raw) else raw.tobytes()
+        data = exr_zip_block(rows, self.order, self.dtype)
         self._offsets[y // self.ROWS_PER_CHUNK] = self._file.tell()
         self._file.write(struct.pack("<ii", y, len(data)) + data)
 

@@ -20,7 +20,7 @@ from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["DEFAULT_STEPS", "fit", "fit_frames", "fit_image", "fit_samples"]
+__all__ = ["DEFAULT_STEPS", "fit", "fit_bands", "fit_frames", "fit_image", "fit_samples"]
 
 
 def fit(
@@ -154,20 +154,30 @@ def fit_image(
 def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw,
                times=None):
     """A fresh ``FieldModel`` for targets ``values`` (M, C) and the ``fit`` settings derived from them
-    (one feature slice per entry of ``times`` when given).
+    (one feature slice per entry of ``times`` when given); see ``_model_for``."""
+    log_mean = np.log1p(np.maximum(values, 0.0)).mean(axis=0, dtype=np.float64)
+    return _model_for(float(values.min()), float(values.max()), values.mean(axis=0, dtype=np.float64), log_mean, mesh,
+                      channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw, times)
+
+
+def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mesh, channels, loss, steps, qat_steps,
+               dim, seed, device, scale, model_kw, times=None):
+    """A fresh ``FieldModel`` for targets whose values span ``lo .. hi``, with per-channel ``mean`` (C,) and mean
+    ``log_mean`` (C,) of ``log(1 + max(v, 0))``, and the ``fit`` settings derived from them.
 
     HDR targets (some value > 1) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
     transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
-    output bias starts at the mean of the transformed targets. ``scale`` is (data_range, tonemap) of the progress
-    PSNR, each None for ``dfc.metrics.quality_scale`` of the targets. Returns (model, dict of ``fit`` keywords:
-    steps, qat_steps, loss, data_range, tonemap).
+    output bias starts at the mean of the targets in its output space (for the log transform the mean of the logs,
+    not the log of the mean, which bright pixels pull far above most of the image). ``scale`` is (data_range,
+    tonemap) of the progress PSNR, each None for ``dfc.metrics.quality_scale`` of the targets. Returns (model, dict
+    of ``fit`` keywords: steps, qat_steps, loss, data_range, tonemap).
     """
     from ..field.feature_field import FeatureField
 
-    hdr = float(values.max()) > 1.0
+    hdr = hi > 1.0
     if loss == "auto":
         loss = "logmse" if hdr else "mse"
-    if hdr and float(values.min()) > -1.0:
+    if hdr and lo > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps
     if qat_steps is None:
@@ -175,18 +185,74 @@ def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, 
     n_slices = 1 if times is None else len(times)
     field = FeatureField(mesh, dim=dim, seed=seed, n_slices=n_slices, times=times, device=device)
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
-    # start at the mean of the decoder's own output space: log1p of each value for the log transform (the mean of
-    # the logs, not the log of the mean, which bright pixels pull far above most of the image)
-    out = np.log1p(np.maximum(values, 0.0)) if model.transform == "log" else values
-    mean = torch.from_numpy(out.mean(axis=0, dtype=np.float64))
     with torch.no_grad():
-        model.decoder.linears()[-1].bias.copy_(mean)
-    default = quality_scale(values)
+        model.decoder.linears()[-1].bias.copy_(torch.from_numpy(log_mean if model.transform == "log" else mean))
+    default = quality_scale(np.array([lo, hi]))
     data_range, tonemap = scale
     data_range = default.data_range if data_range is None else data_range
     tonemap = default.tonemap if tonemap is None else tonemap
     return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range,
                    "tonemap": tonemap}
+
+
+def fit_bands(
+    source,
+    mesh,
+    stats,
+    *,
+    steps: int | None = None,
+    batch_size: int = 1 << 14,
+    epoch_pixels: int | None = None,
+    mixed=None,
+    held_out=None,
+    dim: int = 5,
+    seed: int = 0,
+    loss: str = "auto",
+    device: str = "cpu",
+    qat_steps: int | None = None,
+    feature_bits: int = 8,
+    callback: Callable[[int, Tensor, Tensor], None] | None = None,
+    channels: list[str] | None = None,
+    lr: float = 1e-2,
+    final_lr: float | None = 1e-3,
+    data_range: float | None = None,
+    tonemap: bool | None = None,
+    **model_kw,
+) -> FieldModel:
+    """Fit a ``FieldModel`` on ``mesh`` to a raster read in bands (``dfc.io.bands``), out of core and, inside a
+    ``torch.distributed`` run, data-parallel (``dfc.train.bands.band_sampler``, ``dfc.train.distributed``).
+
+    Parameters
+    ----------
+    source : band source covering ``mesh.domain``; stats : its ``dfc.train.bands.BandStats`` over all ranks (range
+        and mean initialise the model as ``fit_image`` does)
+    batch_size : samples per step over all ranks (rank r draws ``batch_size // N``, plus one for r below the
+        remainder)
+    epoch_pixels : pixels per epoch over all ranks (default ``dfc.train.bands.default_epoch_pixels``)
+    mixed, held_out : pixels never sampled (``EdgeMask``, ``HeldOut``, or None)
+    other arguments : as in ``fit_image``
+
+    Returns
+    -------
+    FieldModel, in evaluation mode, equal on every rank; quantised mode stays on when ``qat_steps > 0``.
+    """
+    from .bands import band_sampler
+    from .distributed import world
+
+    rank, size = world()
+    model, run = _model_for(float(stats.lo.min()), float(stats.hi.max()), stats.mean, stats.log_mean, mesh,
+                            channels or source.channels, loss, steps, qat_steps, dim, seed, device,
+                            (data_range, tonemap), model_kw)
+    local = batch_size // size + (rank < batch_size % size)
+    if local < 1:
+        raise InputError(f"batch size {batch_size} is smaller than the number of ranks ({size})")
+    # on a GPU each epoch's points are located once, so that a step has no host round trip; on the CPU that would
+    # save nothing (every sample is used once per epoch) and cost about 84 bytes per sample
+    query = model.field.query if torch.device(device).type == "cuda" else None
+    sampler = band_sampler(source, mesh.domain, local, epoch_pixels=epoch_pixels, mixed=mixed, held_out=held_out,
+                           rank=rank, world=size, device=device, query=query)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits, **run)
+    return model
 
 
 SAMPLES_LR = 5e-3

@@ -207,3 +207,29 @@ def test_a_missing_extra_is_one_error_line(tmp_path, capsys, monkeypatch, module
 def test_wrong_calls(tmp_path, args, match):
     result = CliRunner().invoke(cli, ["bench", *args, "-o", str(tmp_path)])
     assert result.exit_code == 2 and match in result.output
+
+
+def test_run_measured_sees_a_childs_peak_memory():
+    import sys
+
+    from dfc.bench.timing import run_measured
+
+    peak = run_measured([sys.executable, "-c", "import time; b = bytearray(300 << 20); time.sleep(1.0)"],
+                        interval=0.05)
+    assert 300 <= peak.hwm < 600 and peak.tree >= peak.hwm and peak.seconds >= 1.0
+    with pytest.raises(RuntimeError, match="exit status 3"):
+        run_measured([sys.executable, "-c", "raise SystemExit(3)"])
+
+
+def test_scale_memory_targets_compare_larger_runs_with_the_smallest():
+    from dfc.bench.speed.scale import memory_targets
+
+    def run(size, hwm, tree=0.0, workers=1):
+        return {"size": size, "encode_hwm_mb": hwm, "encode_tree_mb": tree, "workers": workers}
+
+    lines = memory_targets([run(16384, 1500.0), run(32768, 1800.0)])
+    assert lines == ["memory target: encode at 16384² peaks at 1500 MB <= 2048 MB: met",
+                     "memory target: encode at 32768² peaks at 1.20x the 16384² run <= 1.25x: met"]
+    lines = memory_targets([run(16384, 900.0, 2100.0, workers=2), run(32768, 1000.0, 2700.0, workers=2)])
+    assert lines[0].endswith("2100 MB <= 2048 MB: MISSED") and lines[1].endswith("1.29x the 16384² run <= 1.25x: MISSED")
+    assert memory_targets([run(65536, 3000.0)]) == []  # nothing to compare with

@@ -95,7 +95,7 @@ def command(n_triangles: int, n_curves: int, n_points: int, batch: int, repeat: 
                f"{stats['disc_edges']} discontinuous edges; {n_points} points, training batch {batch}, on {dev}",
                err=err)
     click.echo(f"{'threads':>7} {'neighbour':>9} {'location':>10} {'loc.+interp.':>13} {'MLP 5-64-64-3':>14} "
-               f"{'ratio':>6} {'train step':>11}", err=err)
+               f"{'ratio':>6} {'train step':>11} {'samples/s':>10}", err=err)
     for threads, beside in conditions(thread_counts, neighbour):
         with torch.no_grad():
             clamped = field.locator.clamp(xy)
@@ -105,10 +105,11 @@ def command(n_triangles: int, n_curves: int, n_points: int, batch: int, repeat: 
             mlp_s = best_seconds(lambda: mlp(feats), repeat, dev)
         step_s = best_seconds(step, repeat, dev)
         run = {"threads": threads, "neighbour": beside, "locate_s": locate_s, "field_s": field_s, "mlp_s": mlp_s,
-               "ratio": field_s / mlp_s, "train_step_s": step_s}
+               "ratio": field_s / mlp_s, "train_step_s": step_s, "train_samples_per_s": batch / step_s}
         stats["runs"].append(run)
         click.echo(f"{threads:>7} {beside:>9} {locate_s * 1e3:>7.1f} ms {field_s * 1e3:>10.1f} ms "
-                   f"{mlp_s * 1e3:>11.1f} ms {run['ratio']:>6.3f} {step_s * 1e3:>8.1f} ms", err=err)
+                   f"{mlp_s * 1e3:>11.1f} ms {run['ratio']:>6.3f} {step_s * 1e3:>8.1f} ms {batch / step_s:>10.3g}",
+                   err=err)
     click.echo("ratio: location + interpolation over the MLP (target <= 0.5); neighbour busy: another dfc encode "
                "with as many threads", err=err)
     if json_path:
