@@ -15,6 +15,7 @@ gets a gloo / NCCL error, which ``lost_rank`` turns into one line. Only rank 0 w
 
 from __future__ import annotations
 
+import contextlib
 import datetime
 import logging
 import os
@@ -161,7 +162,7 @@ def lost_rank(exc: BaseException) -> RankError | None:
 def launch(n: int, entrypoint, *args, log_dir: str | None = None) -> dict:
     """Run ``entrypoint(*args)`` in ``n`` local ranks with torchrun's elastic agent (standalone rendezvous on a free
     port, no restarts) and return ``{rank: return value}``. Ranks above 0 write their output to log files in
-    ``log_dir`` (a temporary directory by default); rank 0's goes to this process's terminal.
+    ``log_dir`` (by default a temporary directory, removed at the end); rank 0's goes to this process's terminal.
 
     Raises ``RankError`` naming the first rank that failed or died (the agent stops the others).
     """
@@ -172,16 +173,17 @@ def launch(n: int, entrypoint, *args, log_dir: str | None = None) -> dict:
     for name in list(logging.root.manager.loggerDict) + ["torch"]:  # the agent's warnings are not dfc's errors
         if name.startswith("torch"):
             logging.getLogger(name).setLevel(logging.CRITICAL)
-    log_dir = log_dir or tempfile.mkdtemp(prefix="dfc-ranks-")
-    config = LaunchConfig(
-        min_nodes=1, max_nodes=1, nproc_per_node=n, run_id=str(uuid.uuid4()), rdzv_backend="c10d",
-        rdzv_endpoint="localhost:0", max_restarts=0, monitor_interval=0.1, start_method="spawn",
-        logs_specs=DefaultLogsSpecs(log_dir=log_dir, redirects={r: Std.ALL for r in range(1, n)}),
-    )
-    try:
-        return elastic_launch(config, entrypoint)(*args)
-    except ChildFailedError as e:
-        raise RankError(_first_failure(e.failures)) from None
+    logs = contextlib.nullcontext(log_dir) if log_dir else tempfile.TemporaryDirectory(prefix="dfc-ranks-")
+    with logs as log_dir:  # a temporary one is removed however the run ends
+        config = LaunchConfig(
+            min_nodes=1, max_nodes=1, nproc_per_node=n, run_id=str(uuid.uuid4()), rdzv_backend="c10d",
+            rdzv_endpoint="localhost:0", max_restarts=0, monitor_interval=0.1, start_method="spawn",
+            logs_specs=DefaultLogsSpecs(log_dir=log_dir, redirects={r: Std.ALL for r in range(1, n)}),
+        )
+        try:
+            return elastic_launch(config, entrypoint)(*args)
+        except ChildFailedError as e:
+            raise RankError(_first_failure(e.failures)) from None
 
 
 def _first_failure(failures: dict) -> str:

@@ -105,11 +105,12 @@ def spawned_children(parent: int) -> list[int]:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the ranks through /proc")
 def test_a_rank_that_dies_stops_the_run_with_one_line_and_no_output(tmp_path):
-    out = tmp_path / "o.dfield"
+    out, scratch = tmp_path / "o.dfield", tmp_path / "tmp"
+    scratch.mkdir()
     proc = subprocess.Popen([sys.executable, "-m", "dfc", "encode", SAMPLES / "sample.exr", "--curves",
                              SAMPLES / "sample.json", "-o", out, "--steps", "100000", "--batch-size", "1024",
                              "--workers", "2", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "OMP_NUM_THREADS": "1"})
+                            env={**os.environ, "OMP_NUM_THREADS": "1", "TMPDIR": str(scratch)})
     try:
         start = time.monotonic()
         while len(spawned_children(proc.pid)) < 2 and time.monotonic() - start < 300 and proc.poll() is None:
@@ -124,7 +125,8 @@ def test_a_rank_that_dies_stops_the_run_with_one_line_and_no_output(tmp_path):
             proc.kill()
     assert_one_line_error(proc.returncode, stderr, "rank 1 died")
     assert stdout == ""
-    assert list(tmp_path.iterdir()) == []  # no output, no temporary file
+    assert list(tmp_path.iterdir()) == [scratch]  # no output, no temporary file
+    assert not list(scratch.glob("dfc-*"))  # the ranks' log directory is removed too (torch leaves its error files)
     assert not any(os.path.exists(f"/proc/{pid}") and open(f"/proc/{pid}/stat").read().split()[2] != "Z"
                    for pid in ranks)
 
@@ -150,13 +152,15 @@ def test_a_damaged_band_mid_file_stops_every_rank_with_one_line(tmp_path):
     data[middle : middle + 2000] = bytes(2000)  # zeroed chunk data, the offset table intact: found by a rank's scan
     bad = tmp_path / "bad.exr"
     bad.write_bytes(bytes(data))
-    out = tmp_path / "o.dfield"
+    out, scratch = tmp_path / "o.dfield", tmp_path / "tmp"
+    scratch.mkdir()
     proc = subprocess.run([sys.executable, "-m", "dfc", "encode", bad, "--curves", SAMPLES / "sample.json", "-o", out,
                            "--steps", "20", "--batch-size", "1024", "--workers", "2", "-q"], capture_output=True,
-                          text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"})
+                          text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1", "TMPDIR": str(scratch)})
     assert_one_line_error(proc.returncode, proc.stderr, "damaged OpenEXR data in rows")
     assert proc.stderr.strip().splitlines()[-1].startswith("dfc: error: rank ")
-    assert proc.stdout == "" and sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr"]
+    assert proc.stdout == "" and sorted(p.name for p in tmp_path.iterdir()) == ["bad.exr", "tmp"]
+    assert not list(scratch.glob("dfc-*"))  # no log directory left behind (torch leaves its error files)
 
 
 class _Failure:
