@@ -1,11 +1,7 @@
 """Rendering a file into an image file region by region: the same pixels tiled or scanline, in one process or in
 two, huge sizes written tiled, PNG refused above its limit, a worker that dies stopping the decode."""
 
-import os
-import signal
-import subprocess
 import sys
-import time
 
 import numpy as np
 import OpenEXR
@@ -20,7 +16,7 @@ from dfc.render_file import write_render
 
 from .cli.test_cli import assert_one_line_error, run
 from .conftest import SAMPLES
-from .train.test_distributed import spawned_children
+from .train.test_distributed import kill_a_child
 
 DFIELD = SAMPLES / "sample.dfield"
 
@@ -81,20 +77,7 @@ def test_wider_than_a_scanline_file_is_tiled_and_png_refused(model, tmp_path, ca
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the workers through /proc")
 def test_a_render_worker_that_dies_stops_the_decode_with_one_line_and_no_output(tmp_path):
     out = tmp_path / "big.exr"
-    proc = subprocess.Popen([sys.executable, "-m", "dfc", "decode", DFIELD, "-o", out, "--size", "20000x20000",
-                             "--workers", "2", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "OMP_NUM_THREADS": "1"})
-    try:
-        start = time.monotonic()
-        while len(spawned_children(proc.pid)) < 2 and time.monotonic() - start < 300 and proc.poll() is None:
-            time.sleep(0.2)
-        workers = spawned_children(proc.pid)
-        assert len(workers) == 2, proc.stderr.read() if proc.poll() is not None else "workers never started"
-        time.sleep(2)  # let them render
-        os.kill(workers[0], signal.SIGKILL)
-        stdout, stderr = proc.communicate(timeout=300)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    proc, _, stdout, stderr = kill_a_child(["decode", DFIELD, "-o", out, "--size", "20000x20000", "--workers", "2",
+                                            "-q"], 0, 2.0)  # 2 s: the workers render
     assert_one_line_error(proc.returncode, stderr, "a render worker died")
     assert stdout == "" and list(tmp_path.iterdir()) == []  # no output, no temporary file

@@ -103,26 +103,33 @@ def spawned_children(parent: int) -> list[int]:
     return sorted(found)
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the ranks through /proc")
-def test_a_rank_that_dies_stops_the_run_with_one_line_and_no_output(tmp_path):
-    out, scratch = tmp_path / "o.dfield", tmp_path / "tmp"
-    scratch.mkdir()
-    proc = subprocess.Popen([sys.executable, "-m", "dfc", "encode", SAMPLES / "sample.exr", "--curves",
-                             SAMPLES / "sample.json", "-o", out, "--steps", "100000", "--batch-size", "1024",
-                             "--workers", "2", "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "OMP_NUM_THREADS": "1", "TMPDIR": str(scratch)})
+def kill_a_child(args: list, index: int, settle: float, env: dict | None = None):
+    """Run ``python -m dfc ARGS``, wait for two multiprocessing children (ranks, render workers), let them work
+    ``settle`` seconds, SIGKILL child ``index``; return (process, children, stdout, stderr) once it has ended."""
+    proc = subprocess.Popen([sys.executable, "-m", "dfc", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env={**os.environ, "OMP_NUM_THREADS": "1", **(env or {})})
     try:
         start = time.monotonic()
         while len(spawned_children(proc.pid)) < 2 and time.monotonic() - start < 300 and proc.poll() is None:
             time.sleep(0.2)
-        ranks = spawned_children(proc.pid)
-        assert len(ranks) == 2, proc.stderr.read() if proc.poll() is not None else "ranks never started"
-        time.sleep(5)  # let them reach the fit
-        os.kill(ranks[1], signal.SIGKILL)
+        children = spawned_children(proc.pid)
+        assert len(children) == 2, proc.stderr.read() if proc.poll() is not None else "children never started"
+        time.sleep(settle)
+        os.kill(children[index], signal.SIGKILL)
         stdout, stderr = proc.communicate(timeout=300)
     finally:
         if proc.poll() is None:
             proc.kill()
+    return proc, children, stdout, stderr
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="finds the ranks through /proc")
+def test_a_rank_that_dies_stops_the_run_with_one_line_and_no_output(tmp_path):
+    out, scratch = tmp_path / "o.dfield", tmp_path / "tmp"
+    scratch.mkdir()
+    proc, ranks, stdout, stderr = kill_a_child(
+        ["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", out, "--steps", "100000",
+         "--batch-size", "1024", "--workers", "2", "-q"], 1, 5.0, {"TMPDIR": str(scratch)})  # 5 s: the ranks fit
     assert_one_line_error(proc.returncode, stderr, "rank 1 died")
     assert stdout == ""
     assert list(tmp_path.iterdir()) == [scratch]  # no output, no temporary file
