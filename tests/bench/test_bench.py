@@ -207,3 +207,25 @@ def test_a_missing_extra_is_one_error_line(tmp_path, capsys, monkeypatch, module
 def test_wrong_calls(tmp_path, args, match):
     result = CliRunner().invoke(cli, ["bench", *args, "-o", str(tmp_path)])
     assert result.exit_code == 2 and match in result.output
+
+
+def test_hdr_input_is_measured_tone_mapped_and_the_baselines_fit_dfcs_loss():
+    """One PSNR definition everywhere (``dfc.metrics.quality_scale``): an HDR scene's windows are scored on
+    tone-mapped values, and the neural baselines train with the loss dfc's encoder uses for HDR colours."""
+    from dfc.bench.compare import BenchSettings, markdown_table, run_bench, scene_inputs
+    from dfc.bench.scenes import hdr_scene
+    from dfc.metrics import QualityScale
+
+    settings = BenchSettings(steps=4, batch_size=256, size=24, render=12, spp=1, sweep=False, match_time=False,
+                             pixel_grid=1, methods=("relu", "raster"), target_bytes=2500, zooms=(1, 10))
+    result = run_bench(**scene_inputs(hdr_scene(), settings), settings=settings)
+    res = result.results
+    assert res["tonemap"] is True and res["data_range"] == 1.0 and "tone-mapped" in res["quality_scale"]
+    assert res["methods"]["relu"]["train"]["loss"] == "logmse"
+    tone = QualityScale(1.0, tonemap=True)
+    for m in ("relu", "raster"):
+        for z, key in enumerate(("1", "10")):
+            for p, value in enumerate(res["methods"][m]["psnr"][key]):
+                ref, test = result.tiles["reference"][p][z], result.tiles[m][p][z]
+                assert value == pytest.approx(tone.psnr(ref, test))
+    assert "tone-mapped x/(1+x), data range 1" in markdown_table(res)
