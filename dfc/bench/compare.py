@@ -65,7 +65,7 @@ from .timing import best_seconds
 
 __all__ = ["LABELS", "METHODS", "TRUTH_SPP", "ZOOMS", "AnalyticReference", "BenchResult", "BenchSettings",
            "config_label", "contact_sheet", "markdown_table", "methods_for", "run_bench", "run_scene", "scene_inputs",
-           "throughput", "write_outputs"]
+           "square_pixels", "throughput", "write_outputs"]
 
 ZOOMS = (1, 10, 33, 100)
 METHODS = ("dfc", "hashgrid", "relu", "raster", *CODECS)
@@ -347,6 +347,21 @@ class _Exact:
         return torch.from_numpy(np.asarray(self.value(xy.cpu().numpy()), dtype=np.float64))
 
 
+def square_pixels(window, longer: int) -> tuple[float, float, float, float]:
+    """``window`` (x0, y0, x1, y1) narrowed about its centre along its shorter side, by less than one of its pixels,
+    so that its render at ``longer`` pixels on the longer side (``window_shape``) has square pixels, as a renderer's
+    camera has them (``MitsubaReference.square_pixels``)."""
+    x0, y0, x1, y1 = window
+    a, b = x1 - x0, y1 - y0
+    n = max(1, math.floor(longer * min(a, b) / max(a, b) + 1e-9))  # floor: the narrowed window stays inside
+    half = 0.5 * n * max(a, b) / longer
+    if a >= b:
+        c = 0.5 * (y0 + y1)
+        return (x0, c - half, x1, c + half)
+    c = 0.5 * (x0 + x1)
+    return (c - half, y0, c + half, y1)
+
+
 HALVES_DB = 10.0 * math.log10(4.0)
 """A Monte Carlo render of 2n samples per pixel against the noise-free truth scores this much above its two halves
 of n samples against each other (their difference has four times the variance of their mean's error)."""
@@ -436,6 +451,8 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
                                scale) for view in _views(m, model).values()]
         record[m]["image_psnr"] = max(scores, key=lambda s: s["all"])
     windows = [[zoom_window(domain, p, z) for z in settings.zooms] for p in probes]
+    if getattr(reference, "square_pixels", False):
+        windows = [[square_pixels(w, settings.render) for w in row] for row in windows]
     tiles, scores, kernels, by_kernel, reference_psnr = _measure_windows(models, windows, pixels, domain, reference,
                                                                          settings, scale, progress, cache)
     for m in models:
