@@ -41,8 +41,12 @@ def _budgets(ctx, param, value):
 
 @click.command()
 @click.argument("input_path", metavar="[INPUT]", required=False, type=click.Path(exists=True, dir_okay=False))
-@click.option("--curves", "curves_path", type=click.Path(exists=True, dir_okay=False),
-              help="Discontinuity curves of INPUT (SVG, JSON or diffusion-curve XML).")
+@click.option("--curves", "curves_path", callback=lambda ctx, param, value: value if value in (None, "auto") else
+              click.Path(exists=True, dir_okay=False).convert(value, param, ctx),
+              help="Discontinuity curves of INPUT (SVG, JSON or diffusion-curve XML); or 'auto': dfc is fitted with "
+                   "the curves dfc curves' extractor finds, at its defaults, in the raster it fits (INPUT, an "
+                   "analytic scene's raster, a Mitsuba scene's render) while the probes and references stay those of "
+                   "the scene's own curves (a file named auto: ./auto).")
 @click.option("--scene", help="Benchmark an analytic scene (a name, see --list-scenes), or a Mitsuba 3 scene "
               "(SCENE.xml, pip install 'dfc[render]'): every zoom is then measured against Mitsuba rendering just "
               "that window; INPUT, when given, is its render to fit (else rendered at --size with --scene-spp) and "
@@ -149,8 +153,8 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
         return
     if input_path is not None and curves_path is None and not mitsuba:
         raise click.UsageError("INPUT needs --curves")
-    if scene is not None and (fit_curves_to_image or (curves_path and not mitsuba)):
-        raise click.UsageError("--curves and --fit-curves-to-image apply to INPUT, not to --scene NAME")
+    if scene is not None and (fit_curves_to_image or (curves_path not in (None, "auto") and not mitsuba)):
+        raise click.UsageError("--curves (but auto) and --fit-curves-to-image apply to INPUT, not to --scene NAME")
     if rd and target_bytes:
         raise click.UsageError("--rd sweeps --budgets; --bytes applies to a single comparison")
     if budgets and not rd:
@@ -171,9 +175,10 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
         if not quiet:
             click.echo(f"bench: {message}", err=True)
 
+    auto = curves_path == "auto"
     if mitsuba:
-        inputs = _mitsuba_inputs(scene, input_path, curves_path, settings, probes, scene_spp, sensor, quiet,
-                                 progress)
+        inputs = _mitsuba_inputs(scene, input_path, None if auto else curves_path, settings, probes, scene_spp,
+                                 sensor, quiet, progress)
     elif scene is not None:
         from ..bench.scenes import get_scene
 
@@ -184,11 +189,15 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
         from ..io.image import read_image
 
         image = read_image(input_path)
-        curves = check_domain(read_curves_checked(curves_path, quiet), image.width, image.height,
-                              fit_curves_to_image)
+        curves = _auto_curves(image.pixels, (0.0, 0.0, float(image.width), float(image.height)), progress) if auto \
+            else check_domain(read_curves_checked(curves_path, quiet), image.width, image.height, fit_curves_to_image)
         points, kinds = (probes, None) if probes else labelled_probes(curves)
         inputs = {"pixels": image.pixels, "curves": curves, "channels": image.channels, "probes": points,
                   "probe_kinds": kinds, "name": input_path}
+    if auto and (mitsuba or scene is not None):
+        inputs["curves"] = _auto_curves(inputs["pixels"], inputs["curves"].domain, progress)
+    if auto:
+        inputs["name"] = f"{inputs['name']}, dfc fitted with curves found in the raster (--curves auto)"
     if rd:
         from ..bench.rd import default_budgets, rd_markdown, run_rd, write_rd
 
@@ -201,6 +210,26 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
     for path in paths:
         progress(f"wrote {path}")
     _finish(text, output, json_path)
+
+
+def _auto_curves(pixels, domain, progress):
+    """``--curves auto``: the curves ``image_curves`` finds at its defaults in ``pixels`` (H, W, C), scaled from
+    pixels onto ``domain`` (x0, y0, x1, y1)."""
+    from ..errors import ExtraError
+    from ..geometry.curves import Curves
+
+    progress("finding the curves in the raster (dfc curves' defaults)")
+    try:
+        from ..geometry.sources.raster import image_curves
+
+        found = image_curves(pixels)
+    except ImportError:
+        raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
+    h, w = pixels.shape[:2]
+    x0, y0, x1, y1 = domain
+    cp = found.control_points * [(x1 - x0) / w, (y1 - y0) / h] + [x0, y0]
+    return Curves(tuple(map(float, domain)), cp, found.degree, found.curve, found.t_range, found.names, found.sides,
+                  source="auto")
 
 
 def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, sensor, quiet, progress) -> dict:

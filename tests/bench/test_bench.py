@@ -229,3 +229,20 @@ def test_hdr_input_is_measured_tone_mapped_and_the_baselines_fit_dfcs_loss():
                 ref, test = result.tiles["reference"][p][z], result.tiles[m][p][z]
                 assert value == pytest.approx(tone.psnr(ref, test))
     assert "tone-mapped x/(1+x), data range 1" in markdown_table(res)
+
+
+def test_bench_with_auto_curves_fits_dfc_on_curves_found_in_the_raster(tmp_path):
+    """``--scene NAME --curves auto``: dfc gets the extractor's curves; probes and truth stay the scene's."""
+    from dfc.bench.probes import labelled_probes
+    from dfc.bench.scenes import get_scene
+    from dfc.cli.stats import file_stats
+
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(cli, ["bench", "--scene", "shapes", "--curves", "auto", "--methods", "dfc,raster",
+                                      *TINY, "--size", "64", "--zoom", "1", "--zoom", "10", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    res = json.loads((out / "results.json").read_text())
+    assert np.allclose(res["probes"], labelled_probes(get_scene("shapes").curves)[0])
+    assert "--curves auto" in json.dumps(res)
+    assert file_stats(out / "dfc.dfield")["encoder"]["source"] == "auto"
+    assert file_stats(out / "dfc.dfield")["mesh"]["discontinuous_edges"] > 0
