@@ -114,7 +114,7 @@ def encoder_info(settings, source: str, extra: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------- encoders
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
-                 fit_curves: bool = False, callback: Callback | None = None):
+                 fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None):
     """Encode a raster with its discontinuity curves.
 
     Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
@@ -127,6 +127,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     curves : Curves over the same domain (or any domain with ``fit_curves=True``, scaled onto the image)
     settings : EncodeSettings (defaults when None)
     callback : ``callback(step, loss, batch_psnr)`` after each optimiser step
+    curves_info : where the curves came from, stored in the file's encoder info under ``curves`` (``dfc encode
+        --curves auto``: extracted from the image, with the extractor's settings)
 
     Returns
     -------
@@ -154,7 +156,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                                    data_range=scale.data_range, tonemap=scale.tonemap, **decoder)
     seconds["mesh_s"] += sizing_s
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
-                                                  "hdr": float(pixels.max()) > 1.0})
+                                                  "hdr": float(pixels.max()) > 1.0,
+                                                  **({"curves": curves_info} if curves_info else {})})
     return _finish(model, settings, info, seconds, w * h, lambda m: (pixels, render(m, w, h)), scale)
 
 

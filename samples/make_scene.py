@@ -1,6 +1,6 @@
 """Write the sample 3D scene: ``python samples/make_scene.py`` (from the repository root).
 
-``samples/scene/scene.xml`` is a Mitsuba 3 scene (1024 × 1024, perspective camera, a rectangular area light):
+``samples/scene/scene.xml`` is a Mitsuba 3 scene (512 × 512, perspective camera, a rectangular area light):
 a floor, a smooth torus and a faceted gem (binary PLY meshes written here), a cube sunk into the floor, an
 analytic sphere and an open analytic cylinder. It exercises everything ``dfc curves`` extracts: silhouettes of a
 tessellated smooth surface, creases, boundaries, exact sphere contours and cylinder rims, and mesh intersections.
@@ -56,7 +56,7 @@ SCENE = """<scene version="3.0.0">
         <transform name="to_world"><lookat origin="0.3, 3.2, 7.5" target="0, 0.35, 0" up="0, 1, 0"/></transform>
         <sampler type="independent"><integer name="sample_count" value="64"/></sampler>
         <film type="hdrfilm">
-            <integer name="width" value="1024"/><integer name="height" value="1024"/>
+            <integer name="width" value="512"/><integer name="height" value="512"/>
             <rfilter type="box"/>
         </film>
     </sensor>

@@ -8,7 +8,8 @@ scaled to the code range), ``linear`` (the values' [min, max] mapped onto the co
 values plus 1e-4 of their maximum, for non-negative HDR input); the two numbers a non-identity transfer needs are
 counted as ``SIDE_BYTES``. For each configuration the quality is found by bisection: the highest quality whose
 stream fits the budget; JPEG XL's and WebP's lossless streams are tried too. Of the configurations, the stream with
-the best 1× PSNR on the training raster is kept.
+the best 1× PSNR on the training raster is kept, measured on the input's ``dfc.metrics.quality_scale`` (tone-mapped
+for HDR colours), as every PSNR of the comparison.
 
 Two codecs cannot always spend the budget. AVIF's quality has 64 steps (libavif's quantisers), which at high rates
 are 30–50 % apart in size: its stream may stay well below the budget, and ``Coded.next_bytes`` records the size of
@@ -28,6 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..metrics import QualityScale
 
 __all__ = ["AVIF_SPEED", "CODECS", "Coded", "JXL_EFFORT", "SDR_ONLY", "SIDE_BYTES", "configurations", "decode",
            "encode", "encode_to_budget", "quality_parameters", "require_imagecodecs", "stream_bytes"]
@@ -219,7 +221,7 @@ class Coded:
 
     codec : one of ``CODECS``; config : the chosen configuration with its quality parameters
     n_bytes : what the stream costs (``stream_bytes``); decoded : (H, W, C) float32, the stream decoded
-    score : 1× PSNR on the training raster (dB)
+    score : 1× PSNR on the training raster (dB, on the scale ``encode_to_budget`` was given)
     next_bytes : the cost of the next quality step of the chosen configuration, over the budget (None when the
         top quality fits: ``saturated``)
     candidates : the best stream of every configuration (config, bytes, score)
@@ -258,11 +260,10 @@ def _largest_fitting(size_of: Callable[[float], int], knob: _Knob, n_bytes: int)
     return lo, hi
 
 
-def encode_to_budget(codec: str, pixels: np.ndarray, n_bytes: int, data_range: float) -> Coded:
+def encode_to_budget(codec: str, pixels: np.ndarray, n_bytes: int, scale: QualityScale) -> Coded:
     """``codec``'s best stream of ``pixels`` (H, W, C) float32 in at most ``n_bytes`` (module docstring), scored by
-    PSNR with ``data_range`` against ``pixels``. Raises InputError when WebP is asked for HDR input or no stream
-    fits the budget."""
-    from ..metrics import psnr
+    PSNR on ``scale`` (``dfc.metrics.quality_scale(pixels)``) against ``pixels``. Raises InputError when WebP is
+    asked for HDR input or no stream fits the budget."""
 
     if codec not in CODECS:
         raise InputError(f"unknown codec {codec!r}; known: {', '.join(CODECS)}")
@@ -287,7 +288,7 @@ def encode_to_budget(codec: str, pixels: np.ndarray, n_bytes: int, data_range: f
             continue
         decoded = decode(codec, streams[q], config, channels, value_range)
         found.append({"config": {**config, **quality_parameters(codec, q)}, "bytes": cost(q),
-                      "score": psnr(pixels, decoded, data_range=data_range), "decoded": decoded,
+                      "score": scale.psnr(pixels, decoded), "decoded": decoded,
                       "next_bytes": None if q_next is None else cost(q_next)})
     if not found:
         raise InputError(f"a budget of {n_bytes} bytes is too small for {codec}: its smallest stream of this image "

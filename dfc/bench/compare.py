@@ -22,14 +22,21 @@ Measurements, the same for every method:
   image itself. Reported on every pixel and without the pixels a curve crosses.
 - *Zoom windows*: each probe (``dfc.bench.probes``: edges, junctions, stroke tips, smooth regions) gets one window
   per zoom ``z``, the domain's size divided by ``z`` centred on the probe and shifted inside the domain (zoom 1 is the
-  domain itself), rendered at ``render`` pixels on its longer side with ``spp`` points per pixel. An analytic scene
-  is measured against its exact value at the same points; a user image only at zoom 1 (at its own pixels, against
-  itself), larger zooms get PSNR ``None``. Stored rasters (raster, codecs) are shown through both the bicubic and
-  the Lanczos kernel and the better one counts, window by window (both are recorded).
+  domain itself), rendered at ``render`` pixels on its longer side with ``spp`` points per pixel. With a *reference*
+  (``AnalyticReference``: an analytic scene's exact value at the same points; ``dfc.bench.rendered
+  .MitsubaReference``: Mitsuba rendering just that window) every window is measured against it; a user image alone
+  only at zoom 1 (at its own pixels, against itself), larger zooms get PSNR ``None``. A reference that is itself an
+  estimate (a Monte Carlo render) also gives its own PSNR against the noise-free truth, estimated from two
+  independent halves of its samples (``reference_psnr``): a method scoring near it is limited by the reference.
+  Stored rasters (raster, codecs) are shown through both the bicubic and the Lanczos kernel and the better one
+  counts, window by window (both are recorded).
 
-PSNR uses ``dfc.metrics.data_range`` of the input (as ``dfc.codec`` does). Decode throughput is points per second of
-one batched forward pass, best of ``THROUGHPUT_REPEATS``. The library never prints: progress goes through
-``progress(message)``.
+Every PSNR is measured on ``dfc.metrics.quality_scale`` of the input, as ``dfc.codec`` measures its files: colours in
+[0, 1] as they are with data range 1, HDR colours tone-mapped ``x / (1 + x)`` with data range 1. The neural baselines
+are fitted with the loss dfc's encoder uses for the input (``dfc.train.losses.auto_loss``: the MSE, or for HDR
+colours the MSE of ``sign(v) log(1 + |v|)``), and their sweep and the codecs' choice of configuration are scored on
+the same scale. Decode throughput is points per second of one batched forward pass, best of
+``THROUGHPUT_REPEATS``. The library never prints: progress goes through ``progress(message)``.
 """
 
 from __future__ import annotations
@@ -45,9 +52,9 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from ..metrics import data_range as signal_range
-from ..metrics import psnr
+from ..metrics import QualityScale, quality_scale
 from ..render import window_shape, zoom_window
+from ..train.losses import auto_loss
 from .codecs import CODECS, SDR_ONLY
 from .measure import image_render, image_scores, mixed_pixels, pixel_render
 from .probes import PROBE_KINDS
@@ -56,8 +63,9 @@ from .report import display, write_report
 from .report import markdown_table as table
 from .timing import best_seconds
 
-__all__ = ["LABELS", "METHODS", "TRUTH_SPP", "ZOOMS", "BenchResult", "BenchSettings", "config_label", "contact_sheet",
-           "markdown_table", "methods_for", "run_bench", "run_scene", "scene_inputs", "throughput", "write_outputs"]
+__all__ = ["LABELS", "METHODS", "TRUTH_SPP", "ZOOMS", "AnalyticReference", "BenchResult", "BenchSettings",
+           "config_label", "contact_sheet", "markdown_table", "methods_for", "run_bench", "run_scene", "scene_inputs",
+           "square_pixels", "throughput", "write_outputs"]
 
 ZOOMS = (1, 10, 33, 100)
 METHODS = ("dfc", "hashgrid", "relu", "raster", *CODECS)
@@ -196,7 +204,7 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}
 
 
-def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings, loss, data_range, match_s,
+def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings, loss, scale, match_s,
                 progress) -> tuple[nn.Module, dict]:
     import zstandard
 
@@ -204,17 +212,17 @@ def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings
 
     tuned = tune_baseline(name, pixels, domain, channels, n_bytes, steps=settings.steps,
                           sweep_steps=settings.candidate_steps, batch_size=settings.batch_size,
-                          pixel_grid=settings.pixel_grid, data_range=data_range, loss=loss,
+                          pixel_grid=settings.pixel_grid, scale=scale, loss=loss,
                           match_seconds=match_s if settings.match_time else None, sweep=settings.sweep,
                           seed=settings.seed, device=settings.device, progress=progress)
-    details = {"config": tuned.config, "sweep": tuned.sweep, "train": tuned.train}
+    details = {"config": tuned.config, "sweep": tuned.sweep, "train": {"loss": loss, **tuned.train}}
     # what zstd would save on the fp16 parameters
     raw = b"".join(p.detach().cpu().numpy().astype("<f2").tobytes() for p in tuned.model.parameters())
     details["zstd_bytes"] = len(zstandard.ZstdCompressor(level=19).compress(raw))
     return tuned.model, details
 
 
-def _fit_pixels(name, pixels, domain, channels, n_bytes, settings: BenchSettings, data_range):
+def _fit_pixels(name, pixels, domain, channels, n_bytes, settings: BenchSettings, scale):
     """The raster or a codec's decoded stream as a ``PixelImage`` (bicubic), and its record details."""
     from .baselines import Raster
     from .baselines.upsample import PixelImage
@@ -223,17 +231,17 @@ def _fit_pixels(name, pixels, domain, channels, n_bytes, settings: BenchSettings
     if name == "raster":
         model = Raster.for_budget(n_bytes, domain, channels, image=pixels, device=settings.device)
         return model, {"config": model.describe()}
-    coded = encode_to_budget(name, pixels, n_bytes, data_range)
+    coded = encode_to_budget(name, pixels, n_bytes, scale)
     model = PixelImage(coded.decoded, domain, channels, n_bytes=coded.n_bytes, device=settings.device)
     return model, {"config": {"codec": name, **coded.config}, "candidates": coded.candidates,
                    "next_bytes": coded.next_bytes, "saturated": coded.saturated}
 
 
-def _fit_all(pixels, curves, channels, methods, settings: BenchSettings, data_range: float, progress):
+def _fit_all(pixels, curves, channels, methods, settings: BenchSettings, scale: QualityScale, progress):
     """Every method fitted: (models {method: module}, record {method: bytes, fit_s, points_per_s, details},
     failures {method: message}, dfc's file or None, the others' budget). dfc runs first: its file's size is the
-    others' budget."""
-    loss = "relmse" if float(pixels.max()) > 1.0 else "mse"
+    others' budget. The neural baselines get the loss dfc's encoder uses for these pixels."""
+    loss = auto_loss(pixels)
     models: dict[str, nn.Module] = {}
     record: dict[str, dict] = {}
     failed: dict[str, str] = {}
@@ -248,10 +256,10 @@ def _fit_all(pixels, curves, channels, methods, settings: BenchSettings, data_ra
                 blob = details.pop("blob")
                 n_bytes, dfc_s = size, time.perf_counter() - clock
             elif method in PIXEL_METHODS:
-                model, details = _fit_pixels(method, pixels, curves.domain, channels, n_bytes, settings, data_range)
+                model, details = _fit_pixels(method, pixels, curves.domain, channels, n_bytes, settings, scale)
             else:
                 model, details = _fit_neural(method, pixels, curves.domain, channels, n_bytes, settings, loss,
-                                             data_range, dfc_s, progress)
+                                             scale, dfc_s, progress)
         except (InputError, ValueError) as e:
             if not settings.keep_going:
                 raise InputError(f"{method}: {e}") from e
@@ -276,18 +284,20 @@ def _views(method: str, model: nn.Module) -> dict[str, nn.Module]:
     return {"": model}
 
 
-def _measure_windows(models, windows, pixels, domain, reference, settings: BenchSettings, data_range, progress,
-                     cache: dict | None = None):
+def _measure_windows(models, windows, pixels, domain, reference, settings: BenchSettings, scale: QualityScale,
+                     progress, cache: dict | None = None):
     """Renders and PSNR of every window (``windows[probe][zoom]``). Returns (tiles {key: [probe][zoom] render or
     None} with ``"reference"``, psnr {method: {zoom key: [dB or None per probe]}}, kernels {method: {zoom key:
-    [kernel per probe]}} and by_kernel {method: {kernel: {zoom key: [...]}}} for stored rasters). ``cache`` keeps the
-    reference renders by window across calls (an RD sweep measures the same windows at every budget)."""
+    [kernel per probe]}} and by_kernel {method: {kernel: {zoom key: [...]}}} for stored rasters, reference_psnr
+    {zoom key: [the reference's own estimated PSNR or None per probe]}). ``cache`` keeps the reference renders by
+    window across calls (an RD sweep measures the same windows at every budget)."""
     cache = {} if cache is None else cache
     tiles: dict[str, list[list]] = {k: [] for k in ["reference", *models]}
     psnr_: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models}
     kernels: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models
                                            if m in PIXEL_METHODS}
     by_kernel: dict[str, dict] = {m: {} for m in kernels}
+    reference_psnr: dict[str, list] = {_zkey(z): [] for z in settings.zooms}
     done: dict[tuple, tuple] = {}
     H, W = pixels.shape[:2]
     for k, row in enumerate(windows):
@@ -301,21 +311,22 @@ def _measure_windows(models, windows, pixels, domain, reference, settings: Bench
                     width, height = W, H
                 else:
                     width, height = window_shape(window, settings.render)
+                ref, ref_db = (pixels if whole else None), None
                 if reference is not None:
                     if window not in cache:
-                        cache[window] = pixel_render(_Exact(reference), window, width, height, settings.spp)
-                    ref = cache[window]
-                else:
-                    ref = pixels if whole else None
+                        cache[window] = reference.window(window, width, height, settings.spp)
+                    ref, halves = cache[window]
+                    ref_db = None if halves is None else scale.psnr(*halves) + HALVES_DB
                 renders = {}
                 for m, model in models.items():
                     renders[m] = {v: pixel_render(view, window, width, height, settings.spp, settings.device)
                                   for v, view in _views(m, model).items()}
-                done[window] = (ref, renders)
-            ref, renders = done[window]
+                done[window] = (ref, ref_db, renders)
+            ref, ref_db, renders = done[window]
             tiles["reference"][-1].append(ref)
+            reference_psnr[_zkey(z)].append(ref_db)
             for m, variants in renders.items():
-                scores = {v: None if ref is None else psnr(ref, r, data_range=data_range) for v, r in variants.items()}
+                scores = {v: None if ref is None else scale.psnr(ref, r) for v, r in variants.items()}
                 best = max(scores, key=lambda v: -math.inf if scores[v] is None else scores[v])
                 tiles[m][-1].append(variants[best])
                 psnr_[m][_zkey(z)].append(scores[best])
@@ -323,7 +334,7 @@ def _measure_windows(models, windows, pixels, domain, reference, settings: Bench
                     kernels[m][_zkey(z)].append(best if ref is not None else None)
                     for v, s in scores.items():
                         by_kernel[m].setdefault(v, {_zkey(q): [] for q in settings.zooms})[_zkey(z)].append(s)
-    return tiles, psnr_, kernels, by_kernel
+    return tiles, psnr_, kernels, by_kernel, reference_psnr
 
 
 class _Exact:
@@ -334,6 +345,43 @@ class _Exact:
 
     def __call__(self, xy):
         return torch.from_numpy(np.asarray(self.value(xy.cpu().numpy()), dtype=np.float64))
+
+
+def square_pixels(window, longer: int) -> tuple[float, float, float, float]:
+    """``window`` (x0, y0, x1, y1) narrowed about its centre along its shorter side, by less than one of its pixels,
+    so that its render at ``longer`` pixels on the longer side (``window_shape``) has square pixels, as a renderer's
+    camera has them (``MitsubaReference.square_pixels``)."""
+    x0, y0, x1, y1 = window
+    a, b = x1 - x0, y1 - y0
+    n = max(1, math.floor(longer * min(a, b) / max(a, b) + 1e-9))  # floor: the narrowed window stays inside
+    half = 0.5 * n * max(a, b) / longer
+    if a >= b:
+        c = 0.5 * (y0 + y1)
+        return (x0, c - half, x1, c + half)
+    c = 0.5 * (x0 + x1)
+    return (c - half, y0, c + half, y1)
+
+
+HALVES_DB = 10.0 * math.log10(4.0)
+"""A Monte Carlo render of 2n samples per pixel against the noise-free truth scores this much above its two halves
+of n samples against each other (their difference has four times the variance of their mean's error)."""
+
+
+class AnalyticReference:
+    """An analytic scene's exact value ``value`` (``(N, 2)`` float64 domain points -> ``(N, C)``) as the reference
+    of every window: its mean over the very points each method's pixel is rendered at (``pixel_render``).
+
+    The protocol of a ``run_bench`` reference: ``label`` (str) and ``window(window, width, height, spp)`` ->
+    (``(height, width, C)`` float32 reference render, None or the two independent halves of a Monte Carlo render
+    whose mean it is)."""
+
+    label = "analytic"
+
+    def __init__(self, value: Callable[[np.ndarray], np.ndarray]):
+        self.value = value
+
+    def window(self, window, width: int, height: int, spp: int):
+        return pixel_render(_Exact(self.value), window, width, height, spp), None
 
 
 @dataclass
@@ -348,8 +396,8 @@ class BenchResult:
 
 
 def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settings: BenchSettings,
-              probe_kinds: list[str] | None = None, reference: Callable[[np.ndarray], np.ndarray] | None = None,
-              truth: np.ndarray | None = None, truth_label: str | None = None, name: str = "",
+              probe_kinds: list[str] | None = None, reference=None, truth: np.ndarray | None = None,
+              truth_label: str | None = None, truth_psnr: float | None = None, name: str = "",
               progress: Callable[[str], None] | None = None, cache: dict | None = None) -> BenchResult:
     """Fit every method to ``pixels`` at equal bytes and measure it at 1× and at every probe and zoom.
 
@@ -360,8 +408,10 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     channels : C channel names
     probes : (P, 2) float points in domain units, the zoom centres; probe_kinds : P labels (default "given")
     settings : BenchSettings
-    reference : exact value ``(N, 2) -> (N, C)`` (an analytic scene's ``value``); None for a user image
-    truth : (H, W, C) the best box-filtered 1× truth (default: ``pixels``); truth_label : how it was made
+    reference : the truth of every window: ``AnalyticReference`` (an analytic scene's exact value),
+        ``dfc.bench.rendered.MitsubaReference`` (Mitsuba renders of the window), or None for a user image alone
+    truth : (H, W, C) the best box-filtered 1× truth (default: ``pixels``); truth_label : how it was made;
+        truth_psnr : its own estimated PSNR against the noise-free truth when it is a Monte Carlo render
     name : label of the input, stored in the results
     cache : reference window renders by window, shared by the runs of an RD sweep
 
@@ -371,7 +421,9 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     ``image_psnr`` ({"all", "unmixed"}: dB at 1×), ``psnr`` ({str(zoom): [dB or None per probe]}),
     ``points_per_s``, ``fit_s`` and method details (tuned baselines: ``sweep``, ``train``; codecs: ``candidates``,
     ``next_bytes``, ``kernel`` and ``psnr_by_kernel`` per window). ``results["failed"]``: {method: why} with
-    ``keep_going``.
+    ``keep_going``. ``results["quality_scale"]``: how every PSNR is measured (``QualityScale.describe``, with
+    ``data_range`` and ``tonemap``); ``results["zoom_truth"]``: whether windows above 1× are measured;
+    ``results["reference_psnr"]`` (Monte Carlo references only): {str(zoom): [the reference's estimated PSNR]}.
     """
     settings.check()
     progress = progress or (lambda message: None)
@@ -388,31 +440,38 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
         raise InputError(f"expected one kind per probe, got {len(kinds)} for {len(probes)}")
     hdr = float(pixels.max()) > 1.0
     methods = methods_for(settings, hdr)
-    data_range = signal_range(pixels)
+    scale = quality_scale(pixels)
     H, W = pixels.shape[:2]
     truth = pixels if truth is None else np.asarray(truth, dtype=np.float32)
     mixed = mixed_pixels(curves, H, W)
-    models, record, failed, blob, budget = _fit_all(pixels, curves, channels, methods, settings, data_range, progress)
+    models, record, failed, blob, budget = _fit_all(pixels, curves, channels, methods, settings, scale, progress)
     for m, model in models.items():
         progress(f"{m}: 1x image")
         scores = [image_scores(truth, image_render(view, domain, W, H, settings.pixel_grid, settings.device), mixed,
-                               data_range) for view in _views(m, model).values()]
+                               scale) for view in _views(m, model).values()]
         record[m]["image_psnr"] = max(scores, key=lambda s: s["all"])
     windows = [[zoom_window(domain, p, z) for z in settings.zooms] for p in probes]
-    tiles, scores, kernels, by_kernel = _measure_windows(models, windows, pixels, domain, reference, settings,
-                                                         data_range, progress, cache)
+    if getattr(reference, "square_pixels", False):
+        windows = [[square_pixels(w, settings.render) for w in row] for row in windows]
+    tiles, scores, kernels, by_kernel, reference_psnr = _measure_windows(models, windows, pixels, domain, reference,
+                                                                         settings, scale, progress, cache)
     for m in models:
         record[m]["psnr"] = scores[m]
         if m in kernels:
             record[m]["kernel"], record[m]["psnr_by_kernel"] = kernels[m], by_kernel[m]
     results = {
         "input": name,
-        "reference": "analytic" if reference is not None else "input image (zoom 1 only; larger zooms unmeasured)",
-        "data_range": data_range,
+        "reference": reference.label if reference is not None else "input image (zoom 1 only; larger zooms "
+                                                                    "unmeasured)",
+        "zoom_truth": reference is not None,
+        "quality_scale": scale.describe(),
+        "data_range": scale.data_range,
+        "tonemap": scale.tonemap,
         "hdr": hdr,
         "budget_bytes": int(budget),
         "image": {"width": W, "height": H, "pixel_grid": settings.pixel_grid, "mixed_pixels": int(mixed.sum()),
-                  "truth": truth_label or ("the input image" if reference is None else "analytic")},
+                  "truth": truth_label or ("the input image" if reference is None else reference.label),
+                  "truth_psnr": truth_psnr},
         "zooms": [float(z) for z in settings.zooms],
         "probes": probes.tolist(),
         "probe_kinds": kinds,
@@ -421,6 +480,8 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
         "methods": record,
         "failed": failed,
     }
+    if any(v is not None for values in reference_psnr.values() for v in values):
+        results["reference_psnr"] = reference_psnr
     return BenchResult(results, tiles, blob)
 
 
@@ -442,7 +503,8 @@ def scene_inputs(scene, settings: BenchSettings, *, probes=None, progress=None) 
     else:
         points, kinds = np.asarray(probes, dtype=np.float64), None
     return {"pixels": scene.render(w, h), "curves": scene.curves, "channels": scene.channels, "probes": points,
-            "probe_kinds": kinds, "reference": scene.value, "truth": scene.render(w, h, spp=TRUTH_SPP),
+            "probe_kinds": kinds, "reference": AnalyticReference(scene.value),
+            "truth": scene.render(w, h, spp=TRUTH_SPP),
             "truth_label": f"analytic, box filter of {TRUTH_SPP}x{TRUTH_SPP} stratified points per pixel",
             "name": f"scene {scene.name}"}
 
@@ -495,23 +557,30 @@ def markdown_table(results: dict) -> str:
         img = r["image_psnr"]
         rows.append([r["label"], config_label(m, r), str(r["bytes"]), _mean([img["all"]]), _mean([img["unmixed"]]),
                      *(_mean(r["psnr"][z]) for z in zooms), f"{r['points_per_s']:.3g}"])
+    own = results.get("reference_psnr")
+    if own:  # a Monte Carlo reference: its own estimated PSNR, the ceiling of what can be measured against it
+        truth_db = results["image"].get("truth_psnr")
+        rows.append(["reference itself (estimated)", "two independent halves of its samples", "–",
+                     _mean([truth_db]), "–", *(_mean(own[z]) for z in zooms), "–"])
     kinds = [k for k in PROBE_KINDS + ("given",) if k in results["probe_kinds"]]
     counts = ", ".join(f"{results['probe_kinds'].count(k)} {k}" for k in kinds)
-    notes = (f"Reference: {results['reference']}; 1× truth: {results['image']['truth']}. PSNR in dB (data range "
-             f"{results['data_range']:.4g}); 1× on all {results['image']['width']}×{results['image']['height']} "
+    notes = (f"Reference: {results['reference']}; 1× truth: {results['image']['truth']}. PSNR in dB "
+             f"({results['quality_scale']}); "
+             f"1× on all {results['image']['width']}×{results['image']['height']} "
              f"pixels and without the {results['image']['mixed_pixels']} a curve crosses; zooms: mean over the "
              f"probes ({counts}); budget {results['budget_bytes']} bytes.")
     text = table(f"dfc bench: {results['input']}", notes,
                  ["method", "configuration", "bytes", "1× all px", "1× unmixed", *(f"{z}× probes" for z in zooms),
                   "points/s"], rows)
     big = [z for z in zooms if float(z) > 1]
-    if big and results["reference"] == "analytic":
+    if big and results["zoom_truth"]:
         header = ["method", *(f"{k} {z}×" for z in big for k in kinds)]
         kind_rows = []
-        for r in results["methods"].values():
-            cells = [_mean([v for v, kk in zip(r["psnr"][z], results["probe_kinds"]) if kk == k])
+        named = [(r["label"], r["psnr"]) for r in results["methods"].values()]
+        for label, psnr_ in named + ([("reference itself (estimated)", own)] if own else []):
+            cells = [_mean([v for v, kk in zip(psnr_[z], results["probe_kinds"]) if kk == k])
                      for z in big for k in kinds]
-            kind_rows.append([r["label"], *cells])
+            kind_rows.append([label, *cells])
         text += "\n" + table("By probe kind", "Mean PSNR (dB) over the probes of each kind.", header, kind_rows)
     if results.get("failed"):
         text += "\n" + "\n".join(f"- {LABELS[m]}: not run ({why})" for m, why in results["failed"].items()) + "\n"

@@ -9,7 +9,7 @@ its own box-filtered estimate and is read as stored.
 
 *Mixed pixels* are those a discontinuity crosses (``dfc.geometry.pixels.edge_pixels`` on the input curves): their
 value blends both sides. The 1× image PSNR is reported on every pixel and without them, on the same pixels for
-every method.
+every method, on the input's ``dfc.metrics.quality_scale`` (tone-mapped for HDR colours).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..metrics import psnr
+from ..metrics import QualityScale
 from ..render import values_at, window_points
 
 __all__ = ["EVAL_BLOCK", "grid_points", "image_render", "image_scores", "mixed_pixels", "pixel_render"]
@@ -79,9 +79,9 @@ def mixed_pixels(curves, height: int, width: int) -> np.ndarray:
     return edge_pixels(pieces, height, width)
 
 
-def image_scores(truth: np.ndarray, test: np.ndarray, mixed: np.ndarray, data_range: float) -> dict[str, float]:
+def image_scores(truth: np.ndarray, test: np.ndarray, mixed: np.ndarray, scale: QualityScale) -> dict[str, float]:
     """PSNR of ``test`` against ``truth`` (both (H, W, C)) on every pixel (``all``) and on the pixels not in
-    ``mixed`` (H, W) bool (``unmixed``), with ``data_range``."""
+    ``mixed`` (H, W) bool (``unmixed``), on ``scale`` (``dfc.metrics.quality_scale`` of the input)."""
     keep = ~mixed
-    return {"all": psnr(truth, test, data_range=data_range),
-            "unmixed": psnr(truth[keep], test[keep], data_range=data_range) if keep.any() else None}
+    return {"all": scale.psnr(truth, test),
+            "unmixed": scale.psnr(truth[keep], test[keep]) if keep.any() else None}

@@ -99,7 +99,8 @@ def rd_record(runs: list[BenchResult], budgets: list[int]) -> dict:
             points.append({"budget": budget, "bytes": r["bytes"], "image_psnr": r["image_psnr"], "psnr": by_zoom,
                            "psnr_by_kind": by_kind, "config": r["config"], "configuration": config_label(m, r)})
         curves[m] = points
-    keep = ("input", "reference", "data_range", "hdr", "image", "zooms", "probes", "probe_kinds", "windows")
+    keep = ("input", "reference", "zoom_truth", "quality_scale", "data_range", "tonemap", "hdr", "image", "zooms",
+            "probes", "probe_kinds", "windows")
     settings = {k: v for k, v in first["settings"].items() if k not in ("target_bytes", "keep_going")}
     return {"rd": True, **{k: first[k] for k in keep}, "budgets": list(budgets), "settings": settings,
             "curves": curves, "runs": [r.results for r in runs]}
@@ -108,7 +109,7 @@ def rd_record(runs: list[BenchResult], budgets: list[int]) -> dict:
 def _panels(record: dict) -> list[tuple[str, Callable[[dict], float | None]]]:
     panels = [("1×, all pixels", lambda p: p["image_psnr"]["all"]),
               ("1×, without mixed pixels", lambda p: p["image_psnr"]["unmixed"])]
-    if record["reference"] == "analytic":
+    if record["zoom_truth"]:
         for z in record["zooms"]:
             if z > 1:
                 panels.append((f"{_zkey(z)}×, mean of the probes", lambda p, k=_zkey(z): p["psnr"][k]))
@@ -147,8 +148,8 @@ def _png(fig, plt) -> bytes:
 
 
 def rd_plots(record: dict) -> dict[str, bytes]:
-    """{"rd.png": ..., "rd_probes.png": ...} PNG bytes (module docstring); the second only for an analytic
-    reference with a zoom above 1."""
+    """{"rd.png": ..., "rd_probes.png": ...} PNG bytes (module docstring); the second only with a reference at every
+    zoom (``zoom_truth``) and a zoom above 1."""
     plt = require_matplotlib()
     panels = _panels(record)
     fig, axes = _axes(plt, len(panels), min(4, len(panels)))
@@ -159,7 +160,7 @@ def rd_plots(record: dict) -> dict[str, bytes]:
     out = {"rd.png": _png(fig, plt)}
     zooms = [_zkey(z) for z in record["zooms"] if z > 1]
     kinds = [k for k in PROBE_KINDS + ("given",) if k in record["probe_kinds"]]
-    if record["reference"] == "analytic" and zooms:
+    if record["zoom_truth"] and zooms:
         fig, axes = _axes(plt, len(zooms) * len(kinds), len(kinds))
         for i, (z, k) in enumerate((z, k) for z in zooms for k in kinds):
             _plot(axes[i], record, f"{z}×, {k} probes", lambda p, z=z, k=k: p["psnr_by_kind"][k][z])
@@ -173,7 +174,7 @@ def rd_markdown(record: dict) -> str:
     """``results.md`` of an RD sweep: per measure, PSNR (dB) and bytes of every method at every budget."""
     measures = [("1×, all pixels", lambda p: p["image_psnr"]["all"]),
                 ("1×, without mixed pixels", lambda p: p["image_psnr"]["unmixed"])]
-    if record["reference"] == "analytic":
+    if record["zoom_truth"]:
         measures += [(f"{_zkey(z)}×, mean of the probes", lambda p, k=_zkey(z): p["psnr"][k])
                      for z in record["zooms"] if z > 1]
     header = ["method", *(f"{b} B" for b in record["budgets"])]

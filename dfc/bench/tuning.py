@@ -3,7 +3,8 @@
 For a budget, every candidate architecture of the method (``candidates``: hash grid levels, features per level, MLP
 width, dense coarse levels, with the table size filling the rest of the budget; ReLU field channels per node, with
 the resolution filling the rest) is built at that budget, trained for ``sweep_steps`` and scored by its 1× PSNR on
-the training raster (box-filtered render against the raster, ``dfc.bench.measure.image_render``). The best is then
+the training raster (box-filtered render against the raster, ``dfc.bench.measure.image_render``), on the input's
+``dfc.metrics.quality_scale`` (tone-mapped for HDR colours), with the loss dfc's encoder uses for it. The best is then
 trained from scratch for the full run: ``steps`` steps, or more when that is shorter than ``match_seconds`` (dfc's
 encode time), estimated from the candidate's own sweep time per step. Everything goes into the record: every
 candidate with its score, the chosen configuration, the steps and wall time of the final run, and how much its batch
@@ -20,6 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 from torch import nn
+
+from ..metrics import QualityScale
 
 __all__ = ["HASHGRID_SWEEP", "TUNED", "Tuned", "candidates", "plateau_db", "tune_baseline"]
 
@@ -70,12 +73,13 @@ class Tuned:
 
 
 def tune_baseline(name: str, pixels: np.ndarray, domain, channels: list[str], n_bytes: int, *, steps: int,
-                  sweep_steps: int, batch_size: int, pixel_grid: int, data_range: float, loss: str,
+                  sweep_steps: int, batch_size: int, pixel_grid: int, scale: QualityScale, loss: str,
                   match_seconds: float | None = None, sweep: bool = True, seed: int = 0, device: str = "cpu",
                   progress: Callable[[str], None] | None = None) -> Tuned:
     """Tune and train baseline ``name`` (``dfc.bench.baselines.BASELINES``) for ``n_bytes`` (module docstring).
 
-    pixels : (H, W, C) float32 training raster over ``domain``; loss, data_range : of the fit and the scores
+    pixels : (H, W, C) float32 training raster over ``domain``; loss : of the fit (``dfc.train.losses``)
+    scale : ``dfc.metrics.QualityScale`` of the fit's progress and the candidates' scores
     sweep : False tries the default candidate only (its short run still times a step for ``match_seconds``)
     Raises ValueError when no candidate fits the budget.
     """
@@ -89,9 +93,9 @@ def tune_baseline(name: str, pixels: np.ndarray, domain, channels: list[str], n_
             record.append({"config": kw, "error": str(e)})
             continue
         clock = time.perf_counter()
-        _train(model, pixels, domain, sweep_steps, batch_size, loss, data_range, seed, device)
+        _train(model, pixels, domain, sweep_steps, batch_size, loss, scale, seed, device)
         seconds = time.perf_counter() - clock
-        score = _score(model, pixels, domain, pixel_grid, data_range, device)
+        score = _score(model, pixels, domain, pixel_grid, scale, device)
         record.append({"config": kw, "architecture": model.describe(), "bytes": model.stored_bytes(),
                        "psnr_1x": score, "seconds": seconds})
         progress(f"{name}: candidate {k + 1}/{len(tried)} {kw}: {score:.2f} dB at 1x after {sweep_steps} steps")
@@ -110,7 +114,7 @@ def tune_baseline(name: str, pixels: np.ndarray, domain, channels: list[str], n_
             progress(f"{name}: step {step + 1}/{run_steps}, batch PSNR {psnr:.2f} dB")
 
     clock = time.perf_counter()
-    history = _train(model, pixels, domain, run_steps, batch_size, loss, data_range, seed, device, callback)
+    history = _train(model, pixels, domain, run_steps, batch_size, loss, scale, seed, device, callback)
     train = {"steps": run_steps, "seconds": time.perf_counter() - clock, "step_s": step_s,
              "matched_s": match_seconds, "plateau_db": plateau_db(history["psnr"])}
     return Tuned(model, {"candidate": chosen["config"], **model.describe()}, record, train)
@@ -124,18 +128,18 @@ def _build(name, kw, n_bytes, pixels, domain, channels, seed, device):
     return model
 
 
-def _train(model, pixels, domain, steps, batch_size, loss, data_range, seed, device, callback=None) -> dict:
+def _train(model, pixels, domain, steps, batch_size, loss, scale, seed, device, callback=None) -> dict:
     from ..train.samplers import image_sampler
     from .baselines import fit_baseline
 
     sampler = image_sampler(pixels, domain, batch_size, device=device, seed=seed)
-    return fit_baseline(model, sampler, steps, loss=loss, seed=seed, data_range=data_range, callback=callback)
+    return fit_baseline(model, sampler, steps, loss=loss, seed=seed, data_range=scale.data_range,
+                        tonemap=scale.tonemap, callback=callback)
 
 
-def _score(model, pixels, domain, spp, data_range, device) -> float:
-    from ..metrics import psnr
+def _score(model, pixels, domain, spp, scale, device) -> float:
     from .measure import image_render
 
     model.eval()
     h, w = pixels.shape[:2]
-    return psnr(pixels, image_render(model, domain, w, h, spp, device), data_range=data_range)
+    return scale.psnr(pixels, image_render(model, domain, w, h, spp, device))

@@ -41,9 +41,22 @@ def _budgets(ctx, param, value):
 
 @click.command()
 @click.argument("input_path", metavar="[INPUT]", required=False, type=click.Path(exists=True, dir_okay=False))
-@click.option("--curves", "curves_path", type=click.Path(exists=True, dir_okay=False),
-              help="Discontinuity curves of INPUT (SVG, JSON or diffusion-curve XML).")
-@click.option("--scene", help="Benchmark an analytic scene instead of INPUT (see --list-scenes).")
+@click.option("--curves", "curves_path", callback=lambda ctx, param, value: value if value in (None, "auto") else
+              click.Path(exists=True, dir_okay=False).convert(value, param, ctx),
+              help="Discontinuity curves of INPUT (SVG, JSON or diffusion-curve XML); or 'auto': dfc is fitted with "
+                   "the curves dfc curves' extractor finds, at its defaults, in the raster it fits (INPUT, an "
+                   "analytic scene's raster, a Mitsuba scene's render) while the probes and references stay those of "
+                   "the scene's own curves (a file named auto: ./auto).")
+@click.option("--scene", help="Benchmark an analytic scene (a name, see --list-scenes), or a Mitsuba 3 scene "
+              "(SCENE.xml, pip install 'dfc[render]'): every zoom is then measured against Mitsuba rendering just "
+              "that window; INPUT, when given, is its render to fit (else rendered at --size with --scene-spp) and "
+              "--curves its curves (else extracted from the scene as dfc curves does).")
+@click.option("--scene-spp", type=click.IntRange(min=2), default=256, show_default=True,
+              help="Mitsuba scenes: samples per pixel of every render (the references, the 1x truth, the input "
+              "when rendered here); each reference is two independent halves, whose difference estimates its own "
+              "PSNR (the table's 'reference itself' row).")
+@click.option("--sensor", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Mitsuba scenes: which sensor (a perspective camera) renders, by index.")
 @click.option("--solve", "solve_path", type=click.Path(exists=True, dir_okay=False),
               help="Physics-informed solve of this diffusion-curve scene (XML, or JSON with side values) by dfc "
               "and the TanH field, SIREN and MLP baselines, against the finite-difference reference.")
@@ -80,7 +93,8 @@ def _budgets(ctx, param, value):
 @click.option("--batch-size", type=click.IntRange(min=1), help="Samples per step  [default: 16384; with --solve: "
               "1024 interior and 1024 boundary points].")
 @click.option("--size", type=click.IntRange(min=8), help="Scenes: longer side of the raster fitted  "
-              "[default: the domain's longer side in its units]; --solve: of the reference grid [default: 256].")
+              "[default: the domain's longer side in its units; a Mitsuba scene's film]; --solve: of the reference "
+              "grid [default: 256].")
 @click.option("--render", type=click.IntRange(min=8), default=256, show_default=True,
               help="Window resolution (longer side, pixels).")
 @click.option("--spp", type=click.IntRange(min=1), default=4, show_default=True, help="Points averaged per pixel.")
@@ -91,9 +105,9 @@ def _budgets(ctx, param, value):
 @threads_option
 @json_option
 @quiet_option
-def command(input_path, curves_path, scene, solve_path, list_scenes, probes, output, zooms, methods, target_bytes,
-            rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp,
-            max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
+def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_scenes, probes, output, zooms,
+            methods, target_bytes, rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size,
+            render, spp, max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
     byte count (tuned neural baselines, a lossless raster, classical codecs at the highest quality that fits),
     measure each at 1x on the whole image and in a window around each probe at each zoom, and write the PSNR tables
@@ -103,13 +117,15 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     \b
     dfc bench INPUT --curves CURVES [--probe X,Y ...] -o DIR
     dfc bench --scene NAME -o DIR
+    dfc bench --scene SCENE.xml [RENDER.exr] [--curves CURVES] [--scene-spp N] -o DIR
     dfc bench --scene NAME --rd [--budgets 2048,4096,...] -o DIR
     dfc bench --solve SCENE -o DIR
     dfc bench --list-scenes
 
     Probes default to points on edges, at junctions and stroke tips, and in smooth regions, found from the curves.
-    Scenes are measured against their exact value at every zoom; a user image only at zoom 1 (against itself,
-    rendered at its own resolution) — larger zooms are rendered but have no reference. --solve trains every method
+    Analytic scenes are measured against their exact value at every zoom, Mitsuba scenes against Mitsuba rendering
+    each window (a film scaled up with a crop window); a user image alone only at zoom 1 (against itself, rendered
+    at its own resolution) — larger zooms are rendered but have no reference. --solve trains every method
     on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
     --zoom do not apply). --json also writes results.json's record to a file (- for standard output, the table then
     going to standard error).
@@ -120,8 +136,13 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
         for name in SCENES:
             click.echo(f"{name:10s} {SUMMARIES[name]}")
         return
-    if sum(v is not None for v in (input_path, scene, solve_path)) != 1:
-        raise click.UsageError("give one of INPUT (with --curves), --scene NAME and --solve SCENE")
+    from ..bench.rendered import is_scene_file
+
+    mitsuba = scene is not None and is_scene_file(scene)
+    if sum(v is not None for v in (None if mitsuba else input_path, scene, solve_path)) != 1:
+        raise click.UsageError("give one of INPUT (with --curves), --scene NAME|SCENE.xml and --solve SCENE")
+    if not mitsuba and (scene_spp != 256 or sensor != 0):
+        raise click.UsageError("--scene-spp and --sensor apply to a Mitsuba scene (--scene SCENE.xml)")
     if output is None:
         raise click.UsageError("missing option '-o' / '--output'")
     if solve_path is not None:
@@ -130,10 +151,10 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
                                    "not apply to --solve")
         _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet)
         return
-    if input_path is not None and curves_path is None:
+    if input_path is not None and curves_path is None and not mitsuba:
         raise click.UsageError("INPUT needs --curves")
-    if scene is not None and (curves_path or fit_curves_to_image):
-        raise click.UsageError("--curves and --fit-curves-to-image apply to INPUT, not to --scene")
+    if scene is not None and (fit_curves_to_image or (curves_path not in (None, "auto") and not mitsuba)):
+        raise click.UsageError("--curves (but auto) and --fit-curves-to-image apply to INPUT, not to --scene NAME")
     if rd and target_bytes:
         raise click.UsageError("--rd sweeps --budgets; --bytes applies to a single comparison")
     if budgets and not rd:
@@ -154,7 +175,11 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
         if not quiet:
             click.echo(f"bench: {message}", err=True)
 
-    if scene is not None:
+    auto = curves_path == "auto"
+    if mitsuba:
+        inputs = _mitsuba_inputs(scene, input_path, None if auto else curves_path, settings, probes, scene_spp,
+                                 sensor, quiet, progress)
+    elif scene is not None:
         from ..bench.scenes import get_scene
 
         inputs = scene_inputs(get_scene(scene), settings, probes=probes, progress=progress)
@@ -164,11 +189,15 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
         from ..io.image import read_image
 
         image = read_image(input_path)
-        curves = check_domain(read_curves_checked(curves_path, quiet), image.width, image.height,
-                              fit_curves_to_image)
+        curves = _auto_curves(image.pixels, (0.0, 0.0, float(image.width), float(image.height)), progress) if auto \
+            else check_domain(read_curves_checked(curves_path, quiet), image.width, image.height, fit_curves_to_image)
         points, kinds = (probes, None) if probes else labelled_probes(curves)
         inputs = {"pixels": image.pixels, "curves": curves, "channels": image.channels, "probes": points,
                   "probe_kinds": kinds, "name": input_path}
+    if auto and (mitsuba or scene is not None):
+        inputs["curves"] = _auto_curves(inputs["pixels"], inputs["curves"].domain, progress)
+    if auto:
+        inputs["name"] = f"{inputs['name']}, dfc fitted with curves found in the raster (--curves auto)"
     if rd:
         from ..bench.rd import default_budgets, rd_markdown, run_rd, write_rd
 
@@ -181,6 +210,46 @@ def command(input_path, curves_path, scene, solve_path, list_scenes, probes, out
     for path in paths:
         progress(f"wrote {path}")
     _finish(text, output, json_path)
+
+
+def _auto_curves(pixels, domain, progress):
+    """``--curves auto``: the curves ``image_curves`` finds at its defaults in ``pixels`` (H, W, C), scaled from
+    pixels onto ``domain`` (x0, y0, x1, y1)."""
+    from ..errors import ExtraError
+    from ..geometry.curves import Curves
+
+    progress("finding the curves in the raster (dfc curves' defaults)")
+    try:
+        from ..geometry.sources.raster import image_curves
+
+        found = image_curves(pixels)
+    except ImportError:
+        raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
+    h, w = pixels.shape[:2]
+    x0, y0, x1, y1 = domain
+    cp = found.control_points * [(x1 - x0) / w, (y1 - y0) / h] + [x0, y0]
+    return Curves(tuple(map(float, domain)), cp, found.degree, found.curve, found.t_range, found.names, found.sides,
+                  source="auto")
+
+
+def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, sensor, quiet, progress) -> dict:
+    """``run_bench``'s inputs for a Mitsuba scene (``dfc.bench.rendered.mitsuba_inputs``), with its render and
+    curves when given."""
+    from pathlib import Path
+
+    from ..bench.rendered import mitsuba_inputs
+
+    if not Path(scene).is_file():
+        raise click.BadParameter(f"{scene}: no such file", param_hint="'--scene'")
+    image = None
+    if input_path is not None:
+        from ..io.image import read_image
+
+        image = read_image(input_path)
+    curves = read_curves_checked(curves_path, quiet) if curves_path else None
+    return mitsuba_inputs(scene, settings, pixels=None if image is None else image.pixels,
+                          channels=None if image is None else image.channels, curves=curves, probes=probes, spp=spp,
+                          sensor=sensor, progress=progress)
 
 
 def _finish(table: str, output: str, json_path: str | None) -> None:

@@ -59,11 +59,23 @@ def _times(ctx, param, value):
         raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
 
 
+def _curves_arg(ctx, param, value):
+    """``--curves``: required (the message names ``auto``); a file that exists, ``-`` or ``auto``."""
+    if value is None:
+        raise click.UsageError("Missing option '--curves': give the discontinuity curves (SVG, JSON or diffusion-curve "
+                               "XML), or for an image --curves auto to find them in it")
+    if value in ("auto", "-"):
+        return value
+    return click.Path(exists=True, dir_okay=False).convert(value, param, ctx)
+
+
 @click.command()
 @click.argument("input_paths", metavar="INPUT...", nargs=-1, required=True,
                 type=click.Path(exists=True, dir_okay=False, allow_dash=True))
-@click.option("--curves", "curves_path", required=True, type=click.Path(exists=True, dir_okay=False, allow_dash=True),
-              help="Discontinuity curves: SVG, JSON (spec/curves.md) or diffusion-curve XML (- reads standard input).")
+@click.option("--curves", "curves_path", callback=_curves_arg,
+              help="Discontinuity curves: SVG, JSON (spec/curves.md) or diffusion-curve XML (- reads standard input); "
+                   "or 'auto' (images): find them in the image with dfc curves' defaults, recorded in the file "
+                   "(a file named auto: ./auto).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, allow_dash=True),
               help="The .dfield file to write (- for standard output).")
 @click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on the mesh's triangle count.")
@@ -104,8 +116,9 @@ def _times(ctx, param, value):
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
             dim, feature_bits, mesh_bits, loss, seed, device, channels, fit_curves_to_image, times, fields,
             fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
-    """Encode INPUT with the discontinuity CURVES into OUTPUT. INPUT is an EXR/PNG/JPEG image; a .npz sample set
-    or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
+    """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
+    dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
+    sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
     triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling). Files
     are recognised by their content, else by their extension; - reads INPUT from standard input.
 
@@ -137,6 +150,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
             raise click.UsageError("--fields and --fem-sampling apply to FEM input")
         if kind != "samples" and reference_path:
             raise click.UsageError(f"--reference applies to sample sets, not {kind} input")
+        if curves_path == "auto" and kind != "image":
+            raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                                   target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size,
                                   dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits, loss=loss, seed=seed,
@@ -146,20 +161,29 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
                                      param_hint="'--workers'")
         if workers > 1 and output == "-":
             raise click.UsageError("--workers writes the file from its first rank: give -o OUT.dfield, not -")
-        curves = read_curves_checked(curves_path, quiet)
+        out_of_core = _out_of_core(kind, paths, epoch_pixels, workers)
+        if curves_path == "auto" and out_of_core:
+            raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
+                                   "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
+        signal = curves_info = None
+        if not out_of_core:
+            signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
+                                 fields.split(",") if fields else None)
+        if curves_path == "auto":
+            curves, curves_info = _auto_curves(signal)
+        else:
+            curves = read_curves_checked(curves_path, quiet)
         input_bytes = sum(os.path.getsize(p) for p in paths)
-        if _out_of_core(kind, paths, epoch_pixels, workers):
+        if out_of_core:
             job = BandJob(paths[0], channels.split(",") if channels else None, curves, settings,
                           fit_curves_to_image, output, quiet)
             blob, report = run_band_job(job)  # read band by band while the input (or its spooled copy) is there
             if report is None:  # a rank other than 0 of a torchrun run: rank 0 writes and reports
                 return
         else:
-            signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
-                                 fields.split(",") if fields else None)
             reference = _read_reference(reference_path, curves.domain) if reference_path else None
             blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
-                                             reference, quiet)
+                                             reference, curves_info, quiet)
     if blob is None:  # --workers: rank 0 wrote the file
         pass
     elif output == "-":
@@ -169,7 +193,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         out.flush()
     else:
         write_bytes_atomic(output, blob)
-    _summary(output, kind, report, reference_path, stdout_taken(output, json_path))
+    _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path))
     if report.total_bytes > input_bytes:
         note(f"the file ({report.total_bytes} bytes) is larger than the input ({input_bytes} bytes): on an input this "
              f"small the header and decoder weigh more than the data", quiet)
@@ -177,13 +201,37 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         from dataclasses import asdict
 
         write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
-                               **asdict(report)})
+                               **({"curves": curves_info} if curves_info else {}), **asdict(report)})
 
 
-def _summary(output: str, kind: str, report, reference_path, err: bool) -> None:
-    """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times."""
+def _auto_curves(image):
+    """``--curves auto``: the image's curves by the raster extractor at its defaults, and the record of that for the
+    file's encoder info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, counts)."""
+    from dataclasses import replace
+
+    from ..errors import ExtraError
+
+    try:
+        from ..geometry.sources.raster import RasterSettings, image_curves
+
+        extractor = RasterSettings()
+        curves = image_curves(image.pixels, extractor)
+    except ImportError:
+        raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
+    record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
+              "settings": extractor.to_dict(), "curves": curves.n_curves, "pieces": len(curves)}
+    return replace(curves, source="auto"), record
+
+
+def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool) -> None:
+    """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times; where the curves came
+    from when they were extracted."""
     unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
     lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
+    if curves_info:
+        lines.append(f"curves: {curves_info['curves']} curves ({curves_info['pieces']} pieces) found in the image by "
+                     "dfc curves' extractor at its defaults (recorded in the file; see them with dfc curves IMAGE "
+                     "--preview P.png)")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
     scale = ("tone-mapped x/(1+x), " if report.tonemapped else "") + f"data range {report.data_range:.4g}"
@@ -216,7 +264,8 @@ def _fit_callback(bar):
     return callback
 
 
-def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, quiet):
+def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
+                      quiet):
     """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
     from ..codec import encode_fem, encode_frames, encode_image, encode_samples
 
@@ -228,7 +277,8 @@ def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_s
             return encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
         if kind == "frames":
             return encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
-        return encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+        return encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback,
+                            curves_info=curves_info)
 
 
 def _gpus() -> int:

@@ -68,6 +68,10 @@ def command(input_path, json_path, quiet):
         ("bits per pixel", "n/a" if s["bits_per_pixel"] is None else f"{s['bits_per_pixel']:.3f}"),
     ]
     rows += [(f"chunk {name}", f"{size} bytes") for name, size in s["chunk_bytes"].items()]
+    found = s["encoder"].get("curves")
+    if found:
+        rows.append(("curves", f"{found['curves']} curves ({found['pieces']} pieces) {found['extracted']}, settings "
+                               + ", ".join(f"{k}={v}" for k, v in found["settings"].items())))
     width = max(len(k) for k, _ in rows)
     for key, value in rows:
         click.echo(f"{key:<{width}}  {value}")

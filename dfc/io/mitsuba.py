@@ -190,14 +190,15 @@ def window_sensor(base, window, width: int, height: int, *, sampler=None, rfilte
     })
 
 
-def render_window(scene, window, width: int, height: int, spp: int, *, sensor: int = 0,
-                  seed: int = 0) -> np.ndarray:
+def render_window(scene, window, width: int, height: int, spp: int, *, sensor: int = 0, seed: int = 0,
+                  rfilter=None) -> np.ndarray:
     """Render the window ``(x0, y0, x1, y1)`` (film pixels of the rendered image, y down) at ``width × height``.
 
     The exact reference of a zoom: Mitsuba renders the scene through ``window_sensor``, so the whole
     ``[0, W] × [0, H]`` window at ``W × H`` is the scene's own render, and any other window is what a film scaled
     up with a crop window would show. ``scene`` is a scene file or a loaded Mitsuba scene; ``sensor`` the index of
-    a perspective sensor; ``spp`` samples per pixel; ``seed`` the sampler's seed.
+    a perspective sensor; ``spp`` samples per pixel; ``seed`` the sampler's seed; ``rfilter`` the pixel filter (a
+    Mitsuba object or plugin dict, e.g. ``{"type": "box"}``; default the sensor's film's).
 
     Returns (height, width, C) float32 linear values, the film's channels (C = 3, RGB, for the usual integrators).
     Raises ``ValueError`` for a malformed window, size or spp, ``InputError`` for a scene that cannot be used.
@@ -206,7 +207,7 @@ def render_window(scene, window, width: int, height: int, spp: int, *, sensor: i
     path, scene = _loaded(scene)
     if spp < 1:
         raise ValueError(f"spp must be at least 1, got {spp}")
-    view = window_sensor(perspective_sensor(scene, sensor, path), window, width, height)
+    view = window_sensor(perspective_sensor(scene, sensor, path), window, width, height, rfilter=rfilter)
     return np.array(mi.render(scene, sensor=view, spp=int(spp), seed=int(seed)), dtype=np.float32)
 
 

@@ -17,7 +17,7 @@ from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
 from ..metrics import quality_scale
 from .loop import BETAS, Sampler, Schedule, train
-from .losses import DataLoss
+from .losses import DataLoss, auto_loss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
 __all__ = ["DEFAULT_STEPS", "fit", "fit_bands", "fit_frames", "fit_image", "fit_samples"]
@@ -176,7 +176,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
 
     hdr = hi > 1.0
     if loss == "auto":
-        loss = "logmse" if hdr else "mse"
+        loss = auto_loss(np.array([lo, hi]))
     if hdr and lo > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps

@@ -7,11 +7,18 @@ from torch import Tensor, nn
 
 from ..metrics import tonemap
 
-__all__ = ["LOSSES", "RELMSE_EPS", "DataLoss", "loss_value", "signed_log"]
+__all__ = ["LOSSES", "RELMSE_EPS", "DataLoss", "auto_loss", "loss_value", "signed_log"]
 
 LOSSES = ("mse", "relmse", "logmse")
 RELMSE_EPS = 0.01
 """The ``+ 0.01`` in the relative MSE's denominator (paper §5): limits the weight of near-black values."""
+
+
+def auto_loss(values) -> str:
+    """The loss ``loss="auto"`` means for targets ``values`` (array, any shape) of an image: ``"logmse"`` for HDR
+    colours (some value > 1), else ``"mse"``. Every fit of a colour signal resolves "auto" here: dfc's encoder and
+    the comparison harness's baselines."""
+    return "logmse" if float(values.max()) > 1.0 else "mse"
 
 
 def signed_log(v: Tensor) -> Tensor:

@@ -233,3 +233,42 @@ def test_scale_memory_targets_compare_larger_runs_with_the_smallest():
     lines = memory_targets([run(16384, 900.0, 2100.0, workers=2), run(32768, 1000.0, 2700.0, workers=2)])
     assert lines[0].endswith("2100 MB <= 2048 MB: MISSED") and lines[1].endswith("1.29x the 16384² run <= 1.25x: MISSED")
     assert memory_targets([run(65536, 3000.0)]) == []  # nothing to compare with
+
+
+def test_hdr_input_is_measured_tone_mapped_and_the_baselines_fit_dfcs_loss():
+    """One PSNR definition everywhere (``dfc.metrics.quality_scale``): an HDR scene's windows are scored on
+    tone-mapped values, and the neural baselines train with the loss dfc's encoder uses for HDR colours."""
+    from dfc.bench.compare import BenchSettings, markdown_table, run_bench, scene_inputs
+    from dfc.bench.scenes import hdr_scene
+    from dfc.metrics import QualityScale
+
+    settings = BenchSettings(steps=4, batch_size=256, size=24, render=12, spp=1, sweep=False, match_time=False,
+                             pixel_grid=1, methods=("relu", "raster"), target_bytes=2500, zooms=(1, 10))
+    result = run_bench(**scene_inputs(hdr_scene(), settings), settings=settings)
+    res = result.results
+    assert res["tonemap"] is True and res["data_range"] == 1.0 and "tone-mapped" in res["quality_scale"]
+    assert res["methods"]["relu"]["train"]["loss"] == "logmse"
+    tone = QualityScale(1.0, tonemap=True)
+    for m in ("relu", "raster"):
+        for z, key in enumerate(("1", "10")):
+            for p, value in enumerate(res["methods"][m]["psnr"][key]):
+                ref, test = result.tiles["reference"][p][z], result.tiles[m][p][z]
+                assert value == pytest.approx(tone.psnr(ref, test))
+    assert "tone-mapped x/(1+x), data range 1" in markdown_table(res)
+
+
+def test_bench_with_auto_curves_fits_dfc_on_curves_found_in_the_raster(tmp_path):
+    """``--scene NAME --curves auto``: dfc gets the extractor's curves; probes and truth stay the scene's."""
+    from dfc.bench.probes import labelled_probes
+    from dfc.bench.scenes import get_scene
+    from dfc.cli.stats import file_stats
+
+    out = tmp_path / "bench"
+    result = CliRunner().invoke(cli, ["bench", "--scene", "shapes", "--curves", "auto", "--methods", "dfc,raster",
+                                      *TINY, "--size", "64", "--zoom", "1", "--zoom", "10", "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    res = json.loads((out / "results.json").read_text())
+    assert np.allclose(res["probes"], labelled_probes(get_scene("shapes").curves)[0])
+    assert "--curves auto" in json.dumps(res)
+    assert file_stats(out / "dfc.dfield")["encoder"]["source"] == "auto"
+    assert file_stats(out / "dfc.dfield")["mesh"]["discontinuous_edges"] > 0

@@ -8,7 +8,7 @@ from dfc.bench import codecs
 from dfc.bench.codecs import CODECS, LOSSLESS, configurations, decode, encode, encode_to_budget, stream_bytes
 from dfc.bench.scenes import hdr_scene, shapes_scene
 from dfc.errors import InputError
-from dfc.metrics import data_range, psnr
+from dfc.metrics import QualityScale, data_range, psnr, quality_scale
 
 MID_QUALITY = {"jpegxl": 0.7, "avif": 80, "webp": 80.0, "jpeg2k": 45.0}
 """A knob value of each codec well inside its range."""
@@ -74,7 +74,7 @@ def test_grey_and_other_channel_counts(channels, sdr):
 @pytest.mark.parametrize("codec,budget", [("jpegxl", 1200), ("jpeg2k", 1200), ("webp", 600), ("avif", 1200),
                                           ("avif", 2500), ("webp", 1200)])
 def test_streams_fill_the_budget_or_the_next_step_overflows(codec, budget, sdr):
-    coded = encode_to_budget(codec, sdr, budget, 1.0)
+    coded = encode_to_budget(codec, sdr, budget, QualityScale(1.0))
     assert coded.n_bytes <= budget and coded.decoded.shape == sdr.shape
     assert coded.score == pytest.approx(psnr(sdr, coded.decoded, data_range=1.0))
     assert coded.score == max(c["score"] for c in coded.candidates)
@@ -88,9 +88,9 @@ def test_streams_fill_the_budget_or_the_next_step_overflows(codec, budget, sdr):
 
 def test_budget_too_small_and_hdr_webp_are_refused(sdr, hdr):
     with pytest.raises(InputError, match="too small for jpeg2k"):
-        encode_to_budget("jpeg2k", sdr, 50, 1.0)
+        encode_to_budget("jpeg2k", sdr, 50, QualityScale(1.0))
     with pytest.raises(InputError, match="SDR"):
-        encode_to_budget("webp", hdr, 5000, data_range(hdr))
+        encode_to_budget("webp", hdr, 5000, quality_scale(hdr))
 
 
 def test_missing_imagecodecs_names_the_extra(monkeypatch):
@@ -99,3 +99,12 @@ def test_missing_imagecodecs_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "imagecodecs", None)
     with pytest.raises(InputError, match=r"pip install 'dfc\[bench\]'"):
         codecs.require_imagecodecs()
+
+
+def test_hdr_streams_are_chosen_on_the_tone_mapped_scale(hdr):
+    scale = quality_scale(hdr)
+    assert scale.tonemap
+    coded = encode_to_budget("jpeg2k", hdr, 3000, scale)
+    assert coded.score == pytest.approx(scale.psnr(hdr, coded.decoded))
+    assert coded.score != pytest.approx(psnr(hdr, coded.decoded, data_range=data_range(hdr)))
+    assert coded.score == max(c["score"] for c in coded.candidates) and len(coded.candidates) >= 2

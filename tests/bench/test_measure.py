@@ -10,6 +10,7 @@ from dfc.bench.measure import grid_points, image_render, image_scores, mixed_pix
 from dfc.bench.scenes import _pieces
 from dfc.geometry.pixels import edge_pixels
 from dfc.geometry.triangulate import triangulate
+from dfc.metrics import QualityScale
 
 
 class Linear(torch.nn.Module):
@@ -55,5 +56,5 @@ def test_scores_on_all_pixels_and_without_the_mixed_ones():
     test[0, 0] = 0.5
     mixed = np.zeros((4, 4), bool)
     mixed[0, 0] = True
-    s = image_scores(truth, test, mixed, 1.0)
+    s = image_scores(truth, test, mixed, QualityScale(1.0))
     assert s["all"] == pytest.approx(10 * np.log10(16 / 0.25)) and s["unmixed"] == float("inf")

@@ -9,12 +9,14 @@ import pytest
 from dfc.bench import tuning
 from dfc.bench.scenes import shapes_scene
 from dfc.bench.tuning import HASHGRID_SWEEP, candidates, plateau_db, tune_baseline
+from dfc.metrics import QualityScale
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 DOMAIN = (0.0, 0.0, 256.0, 256.0)
 RGB = ["R", "G", "B"]
-SMALL = {"steps": 12, "sweep_steps": 4, "batch_size": 256, "pixel_grid": 1, "data_range": 1.0, "loss": "mse"}
+SMALL = {"steps": 12, "sweep_steps": 4, "batch_size": 256, "pixel_grid": 1, "scale": QualityScale(1.0),
+         "loss": "mse"}
 
 
 @pytest.fixture(scope="module")

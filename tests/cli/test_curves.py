@@ -74,3 +74,56 @@ def test_bad_input_is_one_error_line_and_no_file(case, tmp_path, capsys):
     code, _, err = run(["curves", path, "-o", out, *args], capsys)
     assert_one_line_error(code, err, match)
     assert not out.exists()
+
+
+def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, capsys):
+    """``dfc encode IMAGE --curves auto``: the curves ``dfc curves`` finds with its defaults, and the file says so."""
+    from dfc.cli.stats import file_stats
+    from dfc.geometry.sources.raster import RasterSettings, image_curves
+    from dfc.io.image import read_image
+
+    out = tmp_path / "disc.dfield"
+    code, stdout, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
+                             "--json", tmp_path / "s.json"], capsys)
+    assert code == 0, err
+    expected = image_curves(read_image(disc_exr).pixels)
+    record = file_stats(out)["encoder"]
+    assert record["source"] == "auto"
+    assert record["curves"]["settings"] == RasterSettings().to_dict()
+    assert record["curves"]["curves"] == expected.n_curves == 1 and record["curves"]["pieces"] == len(expected)
+    assert "found in the image" in stdout and "1 curves" in stdout
+    assert json.loads((tmp_path / "s.json").read_text())["curves"]["settings"]["tolerance"] == 0.05
+    code, table, _ = run(["stats", out], capsys)
+    assert code == 0 and "1 curves" in table and "from the image (--curves auto)" in table and "tolerance=0.05" in table
+
+
+def test_encode_without_curves_still_asks(disc_exr, tmp_path, capsys):
+    code, _, err = run(["encode", disc_exr, "-o", tmp_path / "x.dfield"], capsys)
+    assert code == 2 and "Missing option '--curves'" in err and "--curves auto" in err
+    assert not (tmp_path / "x.dfield").exists()
+
+
+def test_auto_curves_apply_to_images_only(tmp_path, capsys):
+    xy = np.random.default_rng(0).random((200, 2)) * 8
+    np.savez(tmp_path / "s.npz", xy=xy, values=xy[:, :1], domain=[0, 0, 8, 8])
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", "auto", "-o", tmp_path / "x.dfield"], capsys)
+    assert code == 2 and "--curves auto finds curves in an image" in err
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", tmp_path / "gone.json", "-o", tmp_path / "x.dfield"],
+                       capsys)
+    assert code == 2 and "does not exist" in err
+
+
+def test_auto_curves_need_the_image_in_memory(disc_exr, tmp_path, capsys):
+    code, _, err = run(["encode", disc_exr, "--curves", "auto", "--epoch-pixels", "1000", "-o", tmp_path / "x.dfield"],
+                       capsys)
+    assert code == 2 and "--curves auto reads the whole image" in err and "dfc curves" in err
+    assert not (tmp_path / "x.dfield").exists()
+
+
+def test_auto_curves_without_the_extra_name_it(disc_exr, tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dfc.geometry.sources.raster", None)  # as if scikit-image were missing
+    code, _, err = run(["encode", disc_exr, "--curves", "auto", "-o", tmp_path / "x.dfield"], capsys)
+    assert_one_line_error(code, err, "pip install 'dfc[curves]'")
+    assert not (tmp_path / "x.dfield").exists()

@@ -305,8 +305,8 @@ def test_curves_agree_with_mitsubas_shape_depth_and_normal_buffers(tmp_path):
     for mesh in ("torus.ply", "gem.ply"):
         text = text.replace(f'value="{mesh}"', f'value="{SAMPLES / "scene" / mesh}"')
     path = tmp_path / "scene.xml"
-    path.write_text(text.replace('name="width" value="1024"', 'name="width" value="160"')
-                    .replace('name="height" value="1024"', 'name="height" value="160"'))
+    path.write_text(text.replace('name="width" value="512"', 'name="width" value="160"')
+                    .replace('name="height" value="512"', 'name="height" value="160"'))
     boundaries, length, count = aov_agreement(path)
     assert count > 3000
     assert boundaries >= 0.99
