@@ -7,7 +7,6 @@ bounded: at most ``max_points`` field queries are in flight at a time.
 
 from __future__ import annotations
 
-from typing import Iterator
 
 import numpy as np
 import torch
@@ -97,22 +96,6 @@ def render_region(model, width: int, height: int, window=None, *, rows: tuple[in
     return np.concatenate(out)
 
 
-def row_blocks(
-    model, width: int, height: int, window=None, *, spp: int = 1, t=None, max_points: int = MAX_POINTS
-) -> Iterator[tuple[int, np.ndarray]]:
-    """Yield (first row, block (h, width, C) float32) covering a ``width × height`` render of ``window``.
-
-    model : callable (N, 2) float64 tensor [, t] -> (N, C) tensor, e.g. ``FieldModel``
-    """
-    if width < 1 or height < 1:
-        raise ValueError(f"output size must be at least 1×1, got {width}×{height}")
-    rows = max(1, min(height, max_points // (width * spp)))
-    for r0 in range(0, height, rows):
-        r1 = min(height, r0 + rows)
-        yield r0, render_region(model, width, height, window, rows=(r0, r1), cols=(0, width), spp=spp, t=t,
-                                max_points=max_points)
-
-
 def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_POINTS) -> np.ndarray:
     """Model values (N, C) float64 at scattered points xy (N, 2) float64 in domain units, ``block`` points per call
     on ``device`` (memory stays bounded)."""
@@ -123,6 +106,5 @@ def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_PO
 
 
 def render(model, width: int, height: int, window=None, *, spp: int = 1, t=None) -> np.ndarray:
-    """Render into memory: (height, width, C) float32. For huge outputs use ``row_blocks``."""
-    blocks = [b for _, b in row_blocks(model, width, height, window, spp=spp, t=t)]
-    return np.concatenate(blocks, axis=0)
+    """Render into memory: (height, width, C) float32. For huge outputs use ``dfc.render_file.write_render``."""
+    return render_region(model, width, height, window, rows=(0, height), cols=(0, width), spp=spp, t=t)
