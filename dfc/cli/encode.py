@@ -367,6 +367,7 @@ def _as_rank(job: BandJob):
 
     from tqdm import tqdm
 
+    from ..errors import DfcError
     from ..train import distributed
 
     tqdm.set_lock(threading.RLock())
@@ -378,6 +379,9 @@ def _as_rank(job: BandJob):
         if lost is None:
             raise
         raise lost from None
+    except DfcError as e:  # the cause, recorded before leaving the group makes the others fail
+        distributed.record_cause(e)
+        raise
     finally:
         distributed.finish()
 

@@ -159,12 +159,28 @@ def lost_rank(exc: BaseException) -> RankError | None:
     return None
 
 
+CAUSE_ENV = "DFC_RANK_CAUSE"
+"""Environment variable naming the file where the first rank that fails with dfc's own error writes it
+(``record_cause``), read by ``launch``."""
+
+
+def record_cause(error: DfcError) -> None:
+    """Write ``error`` as the run's cause, unless another rank wrote one first. A rank calls this before it leaves
+    the process group: the others then fail only as a consequence, and whichever exit the launcher sees first, its
+    line names the real cause."""
+    path = os.environ.get(CAUSE_ENV)
+    if path:
+        with contextlib.suppress(FileExistsError), open(path, "x", encoding="utf-8") as f:
+            f.write(f"rank {world()[0]} failed: {error}")
+
+
 def launch(n: int, entrypoint, *args, log_dir: str | None = None) -> dict:
     """Run ``entrypoint(*args)`` in ``n`` local ranks with torchrun's elastic agent (standalone rendezvous on a free
     port, no restarts) and return ``{rank: return value}``. Ranks above 0 write their output to log files in
     ``log_dir`` (by default a temporary directory, removed at the end); rank 0's goes to this process's terminal.
 
-    Raises ``RankError`` naming the first rank that failed or died (the agent stops the others).
+    Raises ``RankError`` with the cause a rank recorded (``record_cause``), else naming the first rank that failed
+    or died (the agent stops the others).
     """
     from torch.distributed.elastic.multiprocessing import DefaultLogsSpecs, Std
     from torch.distributed.elastic.multiprocessing.errors import ChildFailedError
@@ -173,17 +189,35 @@ def launch(n: int, entrypoint, *args, log_dir: str | None = None) -> dict:
     for name in list(logging.root.manager.loggerDict) + ["torch"]:  # the agent's warnings are not dfc's errors
         if name.startswith("torch"):
             logging.getLogger(name).setLevel(logging.CRITICAL)
-    logs = contextlib.nullcontext(log_dir) if log_dir else tempfile.TemporaryDirectory(prefix="dfc-ranks-")
-    with logs as log_dir:  # a temporary one is removed however the run ends
+    with tempfile.TemporaryDirectory(prefix="dfc-ranks-") as tmp, _environ(CAUSE_ENV, os.path.join(tmp, "cause")):
+        # removed however the run ends: the default log directory and the cause's file, whose path the ranks inherit
         config = LaunchConfig(
             min_nodes=1, max_nodes=1, nproc_per_node=n, run_id=str(uuid.uuid4()), rdzv_backend="c10d",
             rdzv_endpoint="localhost:0", max_restarts=0, monitor_interval=0.1, start_method="spawn",
-            logs_specs=DefaultLogsSpecs(log_dir=log_dir, redirects={r: Std.ALL for r in range(1, n)}),
+            logs_specs=DefaultLogsSpecs(log_dir=log_dir or tmp, redirects={r: Std.ALL for r in range(1, n)}),
         )
         try:
             return elastic_launch(config, entrypoint)(*args)
         except ChildFailedError as e:
+            cause = os.path.join(tmp, "cause")
+            if os.path.exists(cause):
+                with open(cause, encoding="utf-8") as f:
+                    raise RankError(f.read()) from None
             raise RankError(_first_failure(e.failures)) from None
+
+
+@contextlib.contextmanager
+def _environ(name: str, value: str):
+    """Set the environment variable ``name`` to ``value`` for the block (restored after)."""
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        yield
+    finally:
+        if old is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = old
 
 
 def _first_failure(failures: dict) -> str:

@@ -183,3 +183,16 @@ def test_the_first_real_failure_is_reported():
     assert _first_failure({0: _Failure(1, lost, 1), 1: _Failure(1, bad, 2)}) \
         == "rank 1 failed: in.exr: NaN/Inf sample(s) in rows 0..15"
     assert _first_failure({1: _Failure(1, {"message": "ValueError: odd"}, 2)}) == "rank 1 failed: ValueError: odd"
+
+
+def test_the_first_recorded_cause_wins(tmp_path, monkeypatch):
+    from dfc.errors import InputError
+
+    cause = tmp_path / "cause"
+    monkeypatch.setenv(distributed.CAUSE_ENV, str(cause))
+    distributed.record_cause(InputError("damaged OpenEXR data in rows 8..16"))
+    distributed.record_cause(RankError("rank 0 stopped: another rank failed or left"))  # a consequence, later
+    assert cause.read_text() == "rank 0 failed: damaged OpenEXR data in rows 8..16"
+    monkeypatch.delenv(distributed.CAUSE_ENV)
+    distributed.record_cause(InputError("outside a launched run: nothing is written"))
+    assert cause.read_text().endswith("rows 8..16")
