@@ -22,6 +22,8 @@ _LAZY = {
     "fit_frames": "dfc.train.fit",
     "EncodeSettings": "dfc.codec",
     "encode_image": "dfc.codec",
+    "encode_bands": "dfc.codec",
+    "ExrBands": "dfc.io.bands",
     "encode_samples": "dfc.codec",
     "encode_fem": "dfc.codec",
     "encode_frames": "dfc.codec",

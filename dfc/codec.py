@@ -2,8 +2,8 @@
 
 Every encoder runs the same steps: check the input, build the mesh exactly as the decoder will see it
 (``dfc.rate``), fit it (``dfc.train.fit``) with the last steps quantisation-aware, write the file and measure the
-written bytes decoded again (``_finish``), so the file decodes to what it reports. PSNRs use
-``dfc.metrics.data_range``, the same definition the fit's progress sees.
+written bytes decoded again (``_finish``), so the file decodes to what it reports. PSNRs are measured on
+``dfc.metrics.quality_scale`` (tone-mapped for HDR colours), the same scale the fit's progress sees.
 """
 
 from __future__ import annotations
@@ -18,13 +18,14 @@ from . import __version__
 from .errors import InputError
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import load, loads, to_contents
+from .metrics import QualityScale, quality_scale
 from .metrics import data_range as signal_range
-from .rate import sample_mesh_size, sized_mesh
+from .rate import decoder_hidden, image_mesh_size, sample_mesh_size, sized_mesh
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
-__all__ = ["EncodeReport", "EncodeSettings", "check_domain", "encode_fem", "encode_frames", "encode_image",
-           "encode_samples", "encoder_info", "load", "loads"]
+__all__ = ["EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem", "encode_frames",
+           "encode_image", "encode_samples", "encoder_info", "heldout_split", "load", "loads"]
 
 QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
@@ -33,6 +34,13 @@ SAMPLE_PIECE_REL = 1.0 / 64.0
 (``dfc.geometry.curves.split_pieces``). A curved piece's sliver carries one curve feature, so long pieces leave a
 wide band along the curve with little freedom; cutting them halves the walk-on-spheres fit's error near the
 curves (``dfc benchmark wos``)."""
+
+HOLDOUT_FRACTION = 0.1
+"""Sample sets: this share of the samples (at most ``HOLDOUT_MAX``, none below ``HOLDOUT_MIN_SAMPLES``) is left out
+of the fit and the file's PSNR is measured against them: against the samples it was fitted to, a fit that follows
+their noise would look better the worse it denoises."""
+HOLDOUT_MAX = 1 << 18
+HOLDOUT_MIN_SAMPLES = 100
 
 Callback = Callable[..., None]
 """``callback(step, loss, batch_psnr)`` after each optimiser step (0-dim tensors)."""
@@ -45,9 +53,10 @@ class EncodeSettings:
     Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``; then ``refine``
     rounds of error-driven refinement (``_refine``: each splits the triangles holding ``dfc.rate.REFINE_SHARE`` of
     the fit's squared error, at most ``refine_fraction`` of the triangle count, and refits for ``refine_steps``,
-    default half of ``steps``, from the previous fit). Fit
+    default half of ``steps``, from the previous fit; images read whole). Fit
     (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
-    ``device``. Storage (spec/dfield.md): ``feature_bits``, ``feature_coding`` ("predicted": ``FEAC``, "plain": the
+    ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks,
+    recorded). Storage (spec/dfield.md): ``feature_bits``, ``feature_coding`` ("predicted": ``FEAC``, "plain": the
     1.0 ``FEAT``), ``weight_bits`` (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
     """
 
@@ -71,11 +80,16 @@ class EncodeSettings:
     loss: str = "auto"
     seed: int = 0
     device: str = "cpu"
+    epoch_pixels: int | None = None
+    workers: int = 1
 
 
 @dataclass
 class EncodeReport:
-    """What an encode measured. ``psnr`` is of the written file decoded, against the input, with ``data_range``."""
+    """What an encode measured. ``psnr`` is of the written file decoded, against the input (for a sample set: the
+    ``heldout`` samples left out of the fit; for an image read out of core: its ``heldout`` held-out pixels), with
+    ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``psnr_reference``:
+    against the exact values given as ``reference``, on the same scale (sample sets), else None."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -86,6 +100,9 @@ class EncodeReport:
     n_triangles: int
     n_features: int
     seconds: dict[str, float] = field(default_factory=dict)
+    tonemapped: bool = False
+    heldout: int = 0
+    psnr_reference: float | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -114,8 +131,12 @@ def encoder_info(settings, source: str, extra: dict) -> dict:
 
 # ----------------------------------------------------------------------------------------------- encoders
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
-                 fit_curves: bool = False, callback: Callback | None = None):
+                 fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None):
     """Encode a raster with its discontinuity curves.
+
+    Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
+    (``dfc.rate.image_mesh_size``), and without a byte target its decoder's width follows the number of values
+    (``dfc.rate.decoder_hidden``).
 
     Parameters
     ----------
@@ -123,15 +144,20 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     curves : Curves over the same domain (or any domain with ``fit_curves=True``, scaled onto the image)
     settings : EncodeSettings (defaults when None)
     callback : ``callback(step, loss, batch_psnr)`` after each optimiser step
+    curves_info : where the curves came from, stored in the file's encoder info under ``curves`` (``dfc encode
+        --curves auto``: extracted from the image, with the extractor's settings)
 
     Returns
     -------
     (blob, report): the ``.dfield`` bytes and an ``EncodeReport`` whose ``psnr`` is of ``blob`` decoded and
-    rendered at the input's pixel centres, against the input.
+    rendered as ``dfc decode`` renders it at the input's size (at the pixel centres, the pixels a curve crosses
+    averaged over ``dfc.render.EDGE_SPP`` points), against the input (tone-mapped for HDR input,
+    ``report.tonemapped``).
     """
+    from .geometry.pixels import edge_pixels
     from .io.image import check_pixels
     from .io.samples import default_channels
-    from .render import default_edge_spp, render
+    from .render import default_edge_spp, render, window_points
     from .train.fit import fit_image
 
     settings = settings or EncodeSettings()
@@ -139,10 +165,14 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     h, w, c = pixels.shape
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
-    peak = signal_range(pixels)
-    from .geometry.pixels import edge_pixels
-    from .render import window_points
-
+    scale = quality_scale(pixels)
+    clock = time.perf_counter()
+    settings, mesh = image_mesh_size(curves, settings, w * h)  # small images: a mesh and decoder sized to them
+    sizing_s = time.perf_counter() - clock
+    # a byte target sizes the mesh for the decoder of ``settings`` (``dfc.rate.mesh_for_bytes``); else the decoder
+    # follows the input's size too (never wider than ``settings.hidden``)
+    if settings.target_bytes is None:
+        settings = replace(settings, hidden=min(settings.hidden, decoder_hidden(pixels.size)))
     centres = window_points(curves.domain, w, h)
 
     def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not)
@@ -150,24 +180,110 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
         err[edge_pixels(m.field.mesh, h, w).ravel()] = 0.0
         return centres, err
 
-    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, residual=residual,
-                                   min_area=0.25, data_range=peak)
+    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, mesh=mesh,
+                                   residual=residual, min_area=0.25, data_range=scale.data_range,
+                                   tonemap=scale.tonemap)
+    seconds["mesh_s"] += sizing_s
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
-                                                  "hdr": float(pixels.max()) > 1.0})
+                                                  "hdr": float(pixels.max()) > 1.0,
+                                                  **({"curves": curves_info} if curves_info else {})})
     return _finish(model, settings, info, seconds, w * h,
-                   lambda m: (pixels, render(m, w, h, edge_spp=default_edge_spp(m, w, h))), peak, pixel_size=(1.0, 1.0))
+                   lambda m: (pixels, render(m, w, h, edge_spp=default_edge_spp(m, w, h))), scale,
+                   pixel_size=(1.0, 1.0))
+
+
+def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
+                 callback: Callback | None = None):
+    """Encode a raster read in bands (``dfc.io.bands``: an EXR file of any size, never held whole) with its
+    discontinuity curves; data-parallel when called on every rank of a ``torch.distributed`` run.
+
+    Steps (``report.seconds``): the mesh, built on rank 0 and sent to the others (``mesh_s``); one pass over the
+    bands checking every pixel and gathering the range, mean and held-out pixels (``scan_s``, ``dfc.train.bands``);
+    the out-of-core fit (``fit_s``, ``dfc.train.fit.fit_bands``: ``settings.epoch_pixels`` stratified pixels per
+    epoch, mixed and held-out pixels left out); then rank 0 writes and measures the file (``write_s``, ``verify_s``).
+    ``report.psnr`` is of the decoded file at the held-out pixels' centres against their values (stratified, never
+    trained on; ``dfc.train.bands.HELD_OUT_PIXELS`` of them).
+
+    Returns (blob, report) on rank 0 and (None, None) on the other ranks, after checking that every rank holds the
+    same parameters (``dfc.train.distributed.check_replicas``).
+    """
+    from .geometry.pixels import EdgeMask
+    from .train import distributed
+    from .train.bands import HeldOut, scan
+    from .train.fit import MAX_DROPPED_FRACTION, fit_bands
+
+    settings = settings or EncodeSettings()
+    rank, world = distributed.world()
+    h, w = source.height, source.width
+    channels = list(source.channels)
+    curves = check_domain(curves, w, h, fit_curves)
+    clock = time.perf_counter()
+    mesh = _on_rank0(lambda: sized_mesh(curves, settings, channels)[1])
+    seconds = {"mesh_s": time.perf_counter() - clock}
+    clock = time.perf_counter()
+    mixed, held_out = EdgeMask(mesh, h, w), HeldOut(w, h, seed=settings.seed)
+    stats = scan(source, mixed=mixed, held_out=held_out, rank=rank, world=world)
+    stats.lo, stats.hi = distributed.reduce(stats.lo, "min"), distributed.reduce(stats.hi, "max")
+    stats.total, stats.log_total = distributed.reduce(stats.total), distributed.reduce(stats.log_total)
+    stats.count, stats.mixed = (int(v) for v in distributed.reduce(np.array([stats.count, stats.mixed])))
+    held_xy, held_values = distributed.gather_rows(stats.held_xy), distributed.gather_rows(stats.held_values)
+    seconds["scan_s"] = time.perf_counter() - clock
+    clock = time.perf_counter()
+    scale = quality_scale(np.array([stats.lo.min(), stats.hi.max()]))
+    model = fit_bands(source, mesh, stats, steps=settings.steps, batch_size=settings.batch_size,
+                      epoch_pixels=settings.epoch_pixels,
+                      mixed=mixed if stats.mixed <= MAX_DROPPED_FRACTION * stats.count else None, held_out=held_out,
+                      dim=settings.dim, seed=settings.seed, loss=settings.loss, device=settings.device,
+                      qat_steps=settings.qat_steps, feature_bits=settings.feature_bits,
+                      weight_bits=settings.weight_bits, hidden=settings.hidden, layers=settings.layers,
+                      callback=callback, channels=channels, data_range=scale.data_range, tonemap=scale.tonemap)
+    seconds["fit_s"] = time.perf_counter() - clock
+    distributed.check_replicas(model)
+    distributed.barrier()
+    if rank != 0:
+        return None, None
+    settings = replace(settings, workers=world)
+    info = encoder_info(settings, curves.source, {"input": f"image {w}x{h} (bands)", "pixels": w * h,
+                                                  "hdr": float(stats.hi.max()) > 1.0, "held_out": len(held_xy)})
+    centres = (held_xy + 0.5) * np.array([(mesh.domain[2] - mesh.domain[0]) / w, (mesh.domain[3] - mesh.domain[1]) / h])
+    centres += np.array(mesh.domain[:2])
+    blob, report = _finish(model, settings, info, seconds, w * h, lambda m: (held_values, values_at(
+        m, centres, device=settings.device, block=QUERY_BLOCK)), scale, pixel_size=(1.0, 1.0))
+    report.heldout = len(held_xy)
+    return blob, report
+
+
+def _on_rank0(build):
+    """``build()`` run on rank 0 and its result (or its ``DfcError``) sent to every rank."""
+    from .errors import DfcError
+    from .train import distributed
+
+    result = None
+    if distributed.world()[0] == 0:
+        try:
+            result = build()
+        except DfcError as e:
+            result = e
+    result = distributed.broadcast_object(result)
+    if isinstance(result, DfcError):
+        raise result
+    return result
 
 
 def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = None, *,
-                   callback: Callback | None = None):
+                   reference: np.ndarray | None = None, callback: Callback | None = None):
     """Encode a scattered sample set (``dfc.io.samples.SampleSet``) with its discontinuity curves.
 
     The samples' domain (when given) must equal the curves'. Curved pieces are cut to ``SAMPLE_PIECE_REL`` of
     the longer side, and without a mesh-size setting the mesh follows the sample count
-    (``dfc.rate.sample_mesh_size``). ``report.psnr`` is of the decoded file at the sample positions against the
-    sample values, and ``bits_per_pixel`` counts bits per sample.
+    (``dfc.rate.sample_mesh_size``). A random ``HOLDOUT_FRACTION`` of the samples (``heldout_split``) is left out of
+    the fit: ``report.psnr`` is of the decoded file at their positions against their values (``report.heldout``
+    of them). ``reference`` : optional (H, W, C) exact values at the pixel centres of a W × H grid over the
+    domain (``dfc wos --reference``); ``report.psnr_reference`` is of the file rendered there against them.
+    ``bits_per_pixel`` counts bits per sample.
     """
-    from .io.samples import default_channels
+    from .io.samples import SampleSet, default_channels
+    from .render import render
     from .train.fit import fit_samples
 
     settings = settings or EncodeSettings()
@@ -176,19 +292,42 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
     values = np.asarray(samples.values, dtype=np.float32)
     channels = samples.channels or default_channels(values.shape[1])
+    if reference is not None and (np.ndim(reference) != 3 or np.shape(reference)[2] != values.shape[1]):
+        raise InputError(f"the reference must be an (H, W, {values.shape[1]}) raster of the samples' channels, got "
+                         f"shape {np.shape(reference)}")
+    xy = np.asarray(samples.xy, dtype=np.float64)
+    fitted, held = heldout_split(len(xy), settings.seed)
+    train = SampleSet(xy[fitted], values[fitted], domain, samples.channels)
     x0, y0, x1, y1 = curves.domain
     curves = split_pieces(curves, SAMPLE_PIECE_REL * max(x1 - x0, y1 - y0))
     clock = time.perf_counter()
-    settings, mesh = sample_mesh_size(curves, settings, len(values))
+    settings, mesh = sample_mesh_size(curves, settings, len(train))
     sizing_s = time.perf_counter() - clock
-    peak = signal_range(values)
-    model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, channels, callback, mesh=mesh,
-                                   data_range=peak)
+    scale = quality_scale(values)
+    model, seconds = _mesh_and_fit(fit_samples, train, curves, settings, channels, callback, mesh=mesh,
+                                   data_range=scale.data_range, tonemap=scale.tonemap)
     seconds["mesh_s"] += sizing_s
-    xy = np.asarray(samples.xy, dtype=np.float64)
     info = encoder_info(settings, curves.source, {"input": f"samples {len(xy)}", "samples": len(xy)})
-    return _finish(model, settings, info, seconds, len(xy),
-                   lambda m: (values, values_at(m, xy, device=settings.device, block=QUERY_BLOCK)), peak)
+    check = held if len(held) else fitted
+
+    def truth(m):
+        return values[check], values_at(m, xy[check], device=settings.device, block=QUERY_BLOCK)
+
+    blob, report = _finish(model, settings, info, seconds, len(xy), truth, scale)
+    report.heldout = len(held)
+    if reference is not None:
+        h, w = np.shape(reference)[:2]
+        report.psnr_reference = scale.psnr(reference, render(loads(blob, device=settings.device), w, h))
+    return blob, report
+
+
+def heldout_split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (fitted, held out) of ``n`` samples: a random ``HOLDOUT_FRACTION`` (at most ``HOLDOUT_MAX``) held out,
+    drawn with ``seed``; none below ``HOLDOUT_MIN_SAMPLES`` samples. Both sorted (int64)."""
+    n_held = 0 if n < HOLDOUT_MIN_SAMPLES else min(HOLDOUT_MAX, round(HOLDOUT_FRACTION * n))
+    held = np.zeros(n, dtype=bool)
+    held[np.random.default_rng(seed).choice(n, n_held, replace=False)] = True
+    return np.flatnonzero(~held), np.flatnonzero(held)
 
 
 def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None, *, sampling: str = "linear",
@@ -211,14 +350,14 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     samples = SampleSet(xy, values, curves.domain, list(solution.channels))
     node_xy = node_points(solution)[0]
     nodal = solution.values[np.unique(solution.triangles)]
-    peak = signal_range(nodal, physical=True)
+    scale = quality_scale(nodal, physical=True)
     model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, list(solution.channels), callback,
-                                   data_range=peak, **fit_kw)
+                                   data_range=scale.data_range, tonemap=False, **fit_kw)
     info = encoder_info(settings, curves.source, {"input": f"FEM {solution.source or 'mesh'}: {len(nodal)} nodes, "
                                                            f"{len(solution.triangles)} triangles",
                                                   "nodes": len(nodal), "fem_sampling": sampling})
     return _finish(model, settings, info, seconds, len(nodal),
-                   lambda m: (nodal, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)), peak)
+                   lambda m: (nodal, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)), scale)
 
 
 def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
@@ -240,9 +379,9 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     channels = sequence.channels or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
     settings, fit_kw = _physical(settings or EncodeSettings())
-    peak = signal_range(frames)
-    model, seconds = _mesh_and_fit(fit_frames, sequence, curves, settings, channels, callback, data_range=peak,
-                                   **fit_kw)
+    scale = QualityScale(signal_range(frames))  # values as they are: frames are fitted as physical quantities
+    model, seconds = _mesh_and_fit(fit_frames, sequence, curves, settings, channels, callback,
+                                   data_range=scale.data_range, tonemap=False, **fit_kw)
     info = encoder_info(settings, curves.source, {"input": f"frames {t}x{w}x{h}", "pixels": t * w * h,
                                                   "hdr": float(frames.max()) > 1.0})
 
@@ -250,7 +389,7 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
         edge_spp = default_edge_spp(m, w, h)
         return frames, np.stack([render(m, w, h, t=float(s), edge_spp=edge_spp) for s in sequence.times])
 
-    return _finish(model, settings, info, seconds, t * w * h, truth, peak, pixel_size=(1.0, 1.0))
+    return _finish(model, settings, info, seconds, t * w * h, truth, scale, pixel_size=(1.0, 1.0))
 
 
 # ----------------------------------------------------------------------------------------------- shared steps
@@ -315,15 +454,16 @@ def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) 
 
 
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
-            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], data_range: float, pixel_size=None):
-    """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth``
+            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], scale: QualityScale, pixel_size=None):
+    """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth`` on ``scale``
     (``pixel_size``: of a raster input, for the header)."""
     from .io.container import encode_dfield
-    from .metrics import psnr
 
     clock = time.perf_counter()
-    blob, sizes = encode_dfield(to_contents(model, info, pixel_size=pixel_size), **storage(settings))
-    decoded = loads(blob, device=settings.device)
+    # the mesh was validated once, when rate control built it (``dfc.rate.build_mesh``); its bytes decode to it exactly
+    blob, sizes = encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True,
+                                **storage(settings))
+    decoded = loads(blob, device=settings.device, validate_mesh=False)
     seconds["write_s"] = time.perf_counter() - clock
     clock = time.perf_counter()
     reference, test = truth(decoded)
@@ -331,8 +471,8 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
     mesh = decoded.field.mesh
     report = EncodeReport(
         chunk_bytes=sizes, total_bytes=len(blob), bits_per_pixel=8.0 * len(blob) / n_pixels,
-        psnr=psnr(reference, test, data_range=data_range), data_range=data_range,
+        psnr=scale.psnr(reference, test), data_range=scale.data_range,
         n_vertices=mesh.n_vertices, n_triangles=mesh.n_triangles, n_features=decoded.field.n_features,
-        seconds=seconds,
+        seconds=seconds, tonemapped=scale.tonemap,
     )
     return blob, report

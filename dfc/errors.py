@@ -31,3 +31,7 @@ class InputError(DfcError, ValueError):
 
 class FormatError(DfcError, ValueError):
     """A ``.dfield`` file is truncated, corrupt, hostile or of an unsupported version."""
+
+
+class ExtraError(DfcError, ImportError):
+    """An optional dependency is not installed; the message names the ``pip install 'dfc[extra]'`` that adds it."""

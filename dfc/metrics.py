@@ -1,13 +1,23 @@
 """Image-quality metrics with an explicit data range (the habit of ``skimage.metrics``).
 
-Arrays of any matching shape; computed in float64. No torch: these run on decoded rasters.
+Arrays of any matching shape; computed in float64. No torch: these run on decoded rasters (``tonemap`` alone also
+takes tensors, for the fit's progress).
+
+Which scale a signal's PSNR is measured on is decided in one place, ``quality_scale``: the encoder's summary, the
+fit's progress bar and the benchmarks use it. Colours in [0, 1] and physical quantities are compared as they are,
+with ``data_range``; HDR colours (some value above 1) are compared after the tone map ``x / (1 + x)`` (values
+clipped at 0, as ``dfc decode`` maps HDR files into PNG), with data range 1. A PSNR on the linear values with the
+input's span as data range (1000 for an image with a few very bright pixels) is dominated by the bright pixels and
+hides colour errors everywhere else.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["data_range", "mse", "psnr"]
+__all__ = ["QualityScale", "data_range", "mse", "psnr", "quality_scale", "tonemap"]
 
 
 def _pair(image_true, image_test) -> tuple[np.ndarray, np.ndarray]:
@@ -75,3 +85,40 @@ def data_range(values, *, physical: bool = False) -> float:
     if not physical and lo >= 0.0 and hi <= 1.0:
         return 1.0
     return max(hi - lo, 1e-12)
+
+
+def tonemap(values):
+    """Reinhard tone map ``x / (1 + x)`` of values clipped at 0, into [0, 1): a numpy array (any shape, float64 out
+    for float64 in) or a torch tensor, elementwise."""
+    v = values.clip(0, None)
+    return v / (1 + v)
+
+
+@dataclass(frozen=True)
+class QualityScale:
+    """How a PSNR is measured: on ``tonemap``-ped values (``tonemap=True``) or the values, with ``data_range``."""
+
+    data_range: float
+    tonemap: bool = False
+
+    def psnr(self, image_true, image_test) -> float:
+        """``psnr`` of the two arrays on this scale."""
+        a, b = (np.asarray(x, dtype=np.float64) for x in (image_true, image_test))
+        if self.tonemap:
+            a, b = tonemap(a), tonemap(b)
+        return psnr(a, b, data_range=self.data_range)
+
+    def describe(self) -> str:
+        """'data range R', or for HDR 'tone-mapped x/(1+x), data range 1': what a summary prints after a PSNR."""
+        return ("tone-mapped x/(1+x), " if self.tonemap else "") + f"data range {self.data_range:.4g}"
+
+
+def quality_scale(values, *, physical: bool = False) -> QualityScale:
+    """The scale dfc measures the PSNR of a signal ``values`` (any shape) on, everywhere it reports one.
+
+    HDR colours (``physical=False`` and some value > 1): tone-mapped, data range 1. Otherwise no tone map and
+    ``data_range(values, physical=physical)``: 1 for colours in [0, 1], the span for physical quantities.
+    """
+    if not physical and float(np.max(values)) > 1.0:
+        return QualityScale(1.0, tonemap=True)
+    return QualityScale(data_range(values, physical=physical))

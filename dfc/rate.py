@@ -8,6 +8,7 @@ targets ``dim``, ``feature_bits``, ``seed``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -18,8 +19,9 @@ from .geometry.curves import Curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
-__all__ = ["NOISY_SAMPLES_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "mesh_for_bytes",
-           "refinement_points", "sample_mesh_size", "sized_mesh"]
+__all__ = ["NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh",
+           "decoder_hidden", "image_mesh_size", "mesh_for_bytes", "refinement_points", "sample_mesh_size",
+           "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -29,6 +31,12 @@ NOISY_SAMPLES_PER_TRIANGLE = 1000
 """Sample sets without a mesh-size option get about one triangle per this many samples (at most
 ``DEFAULT_TRIANGLES``, at least what the curves force): a finer mesh fits the noise of Monte Carlo samples
 (on the pepper at 500² and 11 spp, 2.75M samples on 1,746 triangles denoise 30×)."""
+PIXELS_PER_TRIANGLE = 16
+"""Images without a mesh-size option get at most one triangle per this many pixels (and at most
+``DEFAULT_TRIANGLES``, which a 256 × 256 image already reaches): a 64 × 64 image gets 256, a 1 × 1 image the two
+triangles of its square, plus what the curves force."""
+DECODER_HIDDEN = (8, 64)
+"""Narrowest and widest hidden layers ``decoder_hidden`` gives (64: the paper's decoder)."""
 
 
 def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | None = None) -> Mesh:
@@ -91,7 +99,7 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int)
                        layers=settings.layers)
     with torch.no_grad():
         model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
-    blob, _ = encode_dfield(to_contents(model), **storage(settings))
+    blob, _ = encode_dfield(to_contents(model), mesh_validated=True, **storage(settings))
     return len(blob), mesh
 
 
@@ -130,10 +138,34 @@ def sample_mesh_size(curves: Curves, settings, n_samples: int):
     """(settings, mesh) for a sample set: ``settings`` with ``max_triangles`` following the sample count
     (``NOISY_SAMPLES_PER_TRIANGLE``) and the decoder-view mesh built with them, when no mesh-size option is set;
     else ``settings`` unchanged and None."""
+    return _counted_mesh(curves, settings, n_samples // NOISY_SAMPLES_PER_TRIANGLE)
+
+
+def image_mesh_size(curves: Curves, settings, n_pixels: int):
+    """(settings, mesh) for an image of ``n_pixels``, as ``sample_mesh_size`` with ``PIXELS_PER_TRIANGLE``: a
+    small image gets a mesh sized to it; from ``DEFAULT_TRIANGLES × PIXELS_PER_TRIANGLE`` pixels up, (settings, None)
+    (the triangulation's default size)."""
+    if n_pixels // PIXELS_PER_TRIANGLE >= DEFAULT_TRIANGLES:
+        return settings, None
+    return _counted_mesh(curves, settings, n_pixels // PIXELS_PER_TRIANGLE)
+
+
+def decoder_hidden(n_values: int) -> int:
+    """Width of the decoder's hidden layers for an input of ``n_values`` numbers (pixels × channels): the power of
+    two nearest below √n / 2, within ``DECODER_HIDDEN`` — 64 from about 150 × 150 RGB pixels up, 32 for 64 × 64,
+    8 for a handful of pixels, whose file would otherwise be mostly decoder weights (9 KB at width 64)."""
+    lo, hi = DECODER_HIDDEN
+    width = 1 << max(0, int(math.floor(math.log2(max(1.0, math.sqrt(n_values) / 2)))))
+    return min(hi, max(lo, width))
+
+
+def _counted_mesh(curves: Curves, settings, cap: int):
+    """(settings with ``max_triangles = cap`` clamped to 2 .. ``DEFAULT_TRIANGLES``, and the decoder-view mesh), raising
+    the cap to what the curves force; (settings, None) when a mesh-size option is set."""
     if any(v is not None for v in (settings.max_triangles, settings.max_area, settings.edge_length,
                                    settings.target_bytes)):
         return settings, None
-    cap = min(DEFAULT_TRIANGLES, max(2, n_samples // NOISY_SAMPLES_PER_TRIANGLE))
+    cap = min(DEFAULT_TRIANGLES, max(2, cap))
     while True:  # the first refusal counts vertices only; the curves' apexes may need a few more triangles
         sized = replace(settings, max_triangles=cap)
         try:

@@ -8,12 +8,12 @@ Anti-aliasing. A raster's pixel is an area average (a box filter), and where a d
 that average blends both sides, which no single point of the field shows. With ``edge_spp > 0`` the pixels a
 discontinuity crosses (``dfc.geometry.pixels.edge_pixels``) are averaged over ``edge_spp`` points instead: the
 field is smooth inside every other pixel, so its centre stands for its average there. ``default_edge_spp`` turns
-this on at or below the resolution of the raster a file was fitted to (header ``pixel_size``).
+this on at or below the resolution of the raster a file was fitted to (header ``pixel_size``). A pixel's value
+depends only on its own points, so the crossed pixels of a render cut into regions (``render_region``) are those of
+the whole render.
 """
 
 from __future__ import annotations
-
-from typing import Iterator
 
 import numpy as np
 import torch
@@ -90,57 +90,66 @@ def window_shape(window, longer: int) -> tuple[int, int]:
     return max(1, round(w * s)), max(1, round(h * s))
 
 
-def window_points(window, width: int, height: int, spp: int = 1, *, rows: tuple[int, int] | None = None) -> np.ndarray:
-    """(h · width · spp, 2) float64 sample points of rows ``[r0, r1)`` (default all, h = r1 − r0) of a
-    ``width × height`` render of ``window``: row-major, a pixel's ``spp`` points (``pixel_offsets``) adjacent."""
+def window_points(window, width: int, height: int, spp: int = 1, *, rows: tuple[int, int] | None = None,
+                  cols: tuple[int, int] | None = None) -> np.ndarray:
+    """(h · w · spp, 2) float64 sample points of rows ``[r0, r1)`` and columns ``[c0, c1)`` (default all;
+    h = r1 − r0, w = c1 − c0) of a ``width × height`` render of ``window``: row-major, a pixel's ``spp`` points
+    (``pixel_offsets``) adjacent. A region's points are exactly those of the whole render at its pixels."""
     x0, y0, x1, y1 = window
     r0, r1 = rows or (0, height)
+    c0, c1 = cols or (0, width)
     off = pixel_offsets(spp)
-    xs = x0 + (np.arange(width)[:, None] + off[None, :, 0]) * ((x1 - x0) / width)  # (W, spp)
+    xs = x0 + (np.arange(c0, c1)[:, None] + off[None, :, 0]) * ((x1 - x0) / width)  # (w, spp)
     ys = y0 + (np.arange(r0, r1)[:, None] + off[None, :, 1]) * ((y1 - y0) / height)  # (h, spp)
-    X = np.broadcast_to(xs[None], (r1 - r0, width, spp))
-    Y = np.broadcast_to(ys[:, None], (r1 - r0, width, spp))
+    X = np.broadcast_to(xs[None], (r1 - r0, c1 - c0, spp))
+    Y = np.broadcast_to(ys[:, None], (r1 - r0, c1 - c0, spp))
     return np.stack([X.ravel(), Y.ravel()], axis=1)
 
 
-def row_blocks(
-    model, width: int, height: int, window=None, *, spp: int = 1, t=None, max_points: int = MAX_POINTS,
-    edge_spp: int = 0,
-) -> Iterator[tuple[int, np.ndarray]]:
-    """Yield (first row, block (h, width, C) float32) covering a ``width × height`` render of ``window``.
+def render_region(model, width: int, height: int, window=None, *, rows: tuple[int, int], cols: tuple[int, int],
+                  spp: int = 1, t=None, max_points: int = MAX_POINTS, edge_spp: int = 0, mixed=None) -> np.ndarray:
+    """Pixels (r1 − r0, c1 − c0, C) float32 of rows ``[r0, r1)`` and columns ``[c0, c1)`` of a ``width × height``
+    render of ``window``, evaluated ``max_points`` at a time (whole rows of the region per call). The values do not
+    depend on how a render is cut into regions of whole rows of the same width.
 
     model : callable (N, 2) float64 tensor [, t] -> (N, C) tensor, e.g. ``FieldModel``
     edge_spp : when > ``spp``, pixels a discontinuity crosses average this many points (module notes)
+    mixed : the ``EdgeMask`` of this ``width × height`` render of ``window`` (built when None and needed; pass one
+        to reuse it across the regions of a render)
     """
     if width < 1 or height < 1:
         raise ValueError(f"output size must be at least 1×1, got {width}×{height}")
     window = check_window(window, model.field.mesh.domain)
-    rows = max(1, min(height, max_points // (width * spp)))
+    (r0, r1), (c0, c1) = rows, cols
+    step = max(1, min(r1 - r0, max_points // ((c1 - c0) * spp)))
     device = model.field.bank.device
-    mixed = None
-    if edge_spp > spp:
-        from .geometry.pixels import edge_pixels
+    if edge_spp > spp and mixed is None:
+        from .geometry.pixels import EdgeMask
 
-        mixed = edge_pixels(model.field.mesh, height, width, window)
+        mixed = EdgeMask(model.field.mesh, height, width, window)
+    out = []
     with torch.no_grad():
-        for r0 in range(0, height, rows):
-            r1 = min(height, r0 + rows)
-            xy = torch.from_numpy(window_points(window, width, height, spp, rows=(r0, r1))).to(device)
+        for a in range(r0, r1, step):
+            b = min(r1, a + step)
+            xy = torch.from_numpy(window_points(window, width, height, spp, rows=(a, b), cols=(c0, c1))).to(device)
             vals = model(xy, t) if t is not None else model(xy)
-            block = vals.float().reshape(r1 - r0, width, spp, -1).mean(dim=2).cpu().numpy()
-            if mixed is not None and mixed[r0:r1].any():
-                block[mixed[r0:r1]] = _pixel_means(model, window, width, height, edge_spp, t, r0, mixed[r0:r1],
-                                                   max_points)
-            yield r0, block
+            block = vals.float().reshape(b - a, c1 - c0, spp, -1).mean(dim=2).cpu().numpy()
+            if edge_spp > spp:
+                mask = mixed.rows(a, b, cols=(c0, c1))
+                if mask.any():
+                    block[mask] = _pixel_means(model, window, width, height, edge_spp, t, (a, c0), mask, max_points)
+            out.append(block)
+    return np.concatenate(out)
 
 
-def _pixel_means(model, window, width, height, spp, t, r0, mask, max_points) -> np.ndarray:
-    """(M, C) float32 means of ``spp`` points in each of the M pixels ``mask`` (h, width) marks, rows from ``r0``."""
+def _pixel_means(model, window, width, height, spp, t, corner, mask, max_points) -> np.ndarray:
+    """(M, C) float32 means of ``spp`` points in each of the M pixels ``mask`` (h, w) marks; its first pixel is
+    ``corner`` (row, column) of the ``width × height`` render of ``window``."""
     rows, cols = np.nonzero(mask)
     x0, y0, x1, y1 = window
     off = pixel_offsets(spp)
-    px = x0 + (cols[:, None] + off[None, :, 0]) * ((x1 - x0) / width)
-    py = y0 + (r0 + rows[:, None] + off[None, :, 1]) * ((y1 - y0) / height)
+    px = x0 + (corner[1] + cols[:, None] + off[None, :, 0]) * ((x1 - x0) / width)
+    py = y0 + (corner[0] + rows[:, None] + off[None, :, 1]) * ((y1 - y0) / height)
     xy = np.stack([px.ravel(), py.ravel()], axis=1)
     device = model.field.bank.device
     step = max(spp, max_points // spp * spp)
@@ -161,6 +170,6 @@ def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_PO
 
 
 def render(model, width: int, height: int, window=None, *, spp: int = 1, t=None, edge_spp: int = 0) -> np.ndarray:
-    """Render into memory: (height, width, C) float32. For huge outputs use ``row_blocks``."""
-    blocks = [b for _, b in row_blocks(model, width, height, window, spp=spp, t=t, edge_spp=edge_spp)]
-    return np.concatenate(blocks, axis=0)
+    """Render into memory: (height, width, C) float32. For huge outputs use ``dfc.render_file.write_render``."""
+    return render_region(model, width, height, window, rows=(0, height), cols=(0, width), spp=spp, t=t,
+                         edge_spp=edge_spp)

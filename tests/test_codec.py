@@ -141,3 +141,126 @@ def test_nan_image_is_refused(scene):
     image[5, 6, 0] = np.nan
     with pytest.raises(InputError, match="NaN"):
         encode_image(image, check_domain(scene.curves, 64, 64, fit=True), EncodeSettings(steps=2))
+
+
+# ------------------------------------------------------------------------------------------- what the summary says
+def _last_batch_psnr(history: list, n: int = 10) -> float:
+    return float(np.mean(history[-n:]))
+
+
+def test_hdr_report_is_tone_mapped_and_the_progress_agrees(scene, one_thread):
+    """HDR images are measured on x / (1 + x) with data range 1, by the summary and by the fit's progress alike."""
+    from dfc.metrics import QualityScale
+
+    image = scene.render(48, 48) * 40.0  # up to 40: HDR
+    curves = check_domain(scene.curves, 48, 48, fit=True)
+    seen = []
+    blob, report = encode_image(image, curves, EncodeSettings(steps=120, batch_size=2048, max_triangles=300),
+                                callback=lambda step, loss, psnr: seen.append(float(psnr)))
+    assert report.tonemapped and report.data_range == 1.0
+    model = loads(blob)  # measured as dfc decode renders it at the input's size: anti-aliased
+    assert default_edge_spp(model, 48, 48) == EDGE_SPP
+    decoded = render(model, 48, 48, edge_spp=EDGE_SPP).astype(np.float64)
+    tm = image / (1 + image), np.maximum(decoded, 0) / (1 + np.maximum(decoded, 0))
+    assert report.psnr == pytest.approx(10 * np.log10(1.0 / np.mean((tm[0] - tm[1]) ** 2)), abs=1e-6)
+    assert report.psnr == pytest.approx(QualityScale(1.0, tonemap=True).psnr(image, decoded), abs=1e-9)
+    # the batch PSNR of the last steps (pixels no curve crosses) and the file's PSNR (every pixel) on one scale;
+    # with the value span (40) as the bar's data range they would differ by 20 log10(40) = 32 dB
+    assert abs(_last_batch_psnr(seen) - report.psnr) < 6.0
+
+
+def test_fem_progress_and_summary_agree_for_small_values(tmp_path, one_thread):
+    """A FEM solution of values about 1e-3: the progress bar's batch PSNR and the summary's use the values' span."""
+    import meshio
+
+    from dfc.codec import encode_fem
+    from dfc.geometry.curves import read_curves
+    from dfc.io.fem import from_meshio
+
+    from .physics.test_fem import grid_mesh, write_curves
+
+    pts, tris = grid_mesh(16)
+    u = 1e-3 * (np.where(pts[:, 0] < 0.5, 0.2, 0.7) + 0.3 * pts[:, 1])
+    solution = from_meshio(meshio.Mesh(pts, [("triangle", tris)], point_data={"u": u}))
+    wall = read_curves(write_curves(tmp_path / "wall.json", [[[0.5, 0.0], [0.5, 1.0]]]))
+    seen = []
+    _, report = encode_fem(solution, wall, EncodeSettings(max_triangles=200, steps=100, batch_size=2048),
+                           callback=lambda step, loss, psnr: seen.append(float(psnr)))
+    assert report.data_range == pytest.approx(float(np.ptp(u)), rel=1e-6) and not report.tonemapped
+    assert abs(_last_batch_psnr(seen) - report.psnr) < 6.0  # with data range 1 the bar would read ~60 dB more
+
+
+def test_sample_set_report_uses_held_out_samples_and_the_reference(scene, monkeypatch, one_thread):
+    import dfc.codec as codec
+    from dfc.io.samples import SampleSet
+    from dfc.metrics import psnr
+    from dfc.render import values_at
+
+    rng = np.random.default_rng(3)
+    xy = rng.random((6000, 2)) * 256
+    noisy = (scene.value(xy) + rng.normal(0, 0.05, (len(xy), 3))).clip(0, 1).astype(np.float32)
+    fitted_on = []
+    real = codec._mesh_and_fit
+    monkeypatch.setattr(codec, "_mesh_and_fit", lambda fn, signal, *a, **k: (fitted_on.append(signal), real(
+        fn, signal, *a, **k))[1])
+    reference = scene.render(32, 32, spp=1)
+    blob, report = codec.encode_samples(SampleSet(xy, noisy, scene.curves.domain, ["R", "G", "B"]), scene.curves,
+                                        EncodeSettings(steps=40, batch_size=2048, seed=5), reference=reference)
+    fitted, held = codec.heldout_split(len(xy), 5)
+    assert report.heldout == len(held) == 600 and len(fitted) + len(held) == len(xy)
+    assert not set(fitted) & set(held)
+    assert len(fitted_on[0].xy) == 5400  # the held-out samples never reach the fit
+    np.testing.assert_array_equal(fitted_on[0].xy, xy[fitted])
+    model = loads(blob)
+    assert report.psnr == pytest.approx(psnr(noisy[held], values_at(model, xy[held]), data_range=1.0), abs=1e-6)
+    assert report.psnr_reference == pytest.approx(psnr(reference, render(model, 32, 32), data_range=1.0), abs=1e-6)
+    with pytest.raises(InputError, match="reference"):
+        codec.encode_samples(SampleSet(xy, noisy), scene.curves, EncodeSettings(steps=1), reference=reference[..., :1])
+
+
+def test_heldout_split_sizes():
+    from dfc.codec import HOLDOUT_MAX, heldout_split
+
+    assert [len(heldout_split(n, 0)[1]) for n in (10, 99, 100, 1000)] == [0, 0, 10, 100]
+    assert len(heldout_split(10 * HOLDOUT_MAX, 0)[1]) == HOLDOUT_MAX
+    a, b = heldout_split(1000, 1)
+    np.testing.assert_array_equal(np.sort(np.concatenate([a, b])), np.arange(1000))
+
+
+def test_small_images_get_a_mesh_and_decoder_sized_to_them(scene, one_thread):
+    from dfc.geometry.curves import Curves
+
+    empty = Curves((0.0, 0.0, 1.0, 1.0), np.zeros((0, 4, 2)), [], [], np.zeros((0, 2)))
+    blob, report = encode_image(np.full((1, 1, 3), 0.5, np.float32), empty, EncodeSettings(steps=5, batch_size=16))
+    assert report.n_triangles == 2 and loads(blob).config()["hidden"] == 8
+    assert len(blob) < 2000  # was 18 KB with the 2,000-triangle mesh and the 64-wide decoder
+    image = scene.render(64, 64, spp=1)
+    curves = check_domain(scene.curves, 64, 64, fit=True)
+    blob, report = encode_image(image, curves, EncodeSettings(steps=5, batch_size=512))
+    assert loads(blob).config()["hidden"] == 32
+    assert report.n_triangles < 300 and len(blob) < 64 * 64 * 3  # smaller than the 8-bit pixels
+    explicit, _ = encode_image(image, curves, EncodeSettings(steps=5, batch_size=512, max_triangles=1000))
+    assert len(loads(explicit).field.mesh.triangles) > 600  # an explicit size is kept
+
+
+def test_an_encode_validates_its_mesh_once(scene, monkeypatch):
+    from dataclasses import replace
+
+    from dfc.codec import encode_bands
+    from dfc.geometry.mesh import Mesh
+    from dfc.io.bands import ArrayBands
+
+    calls = []
+    validate = Mesh.validate
+    monkeypatch.setattr(Mesh, "validate", lambda mesh: (calls.append(mesh.n_triangles), validate(mesh))[1])
+    image = scene.render(64, 64, spp=1)
+    small = replace(scene.curves, domain=(0.0, 0.0, 64.0, 64.0), control_points=scene.curves.control_points / 4.0)
+    settings = EncodeSettings(steps=2, batch_size=256, max_triangles=400)
+    encode_image(image, small, settings)
+    assert len(calls) == 1
+    blob, report = encode_bands(ArrayBands(image, ["R", "G", "B"]), small, settings)
+    assert len(calls) == 2
+    assert {"FEAC", "MLPQ"} <= set(report.chunk_bytes)  # out of core, the same 1.1 chunks are written
+    model = loads(blob)  # a decoder validates what it reads
+    assert len(calls) == 3
+    assert model.header["pixel_size"] == [1.0, 1.0]

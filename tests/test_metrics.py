@@ -33,3 +33,42 @@ def test_psnr_float_requires_data_range():
 def test_shape_mismatch():
     with pytest.raises(ValueError, match="same shape"):
         mse(np.zeros((2, 3)), np.zeros((3, 2)))
+
+
+def test_tonemap_pinned_and_clipped():
+    from dfc.metrics import tonemap
+
+    np.testing.assert_allclose(tonemap(np.array([-2.0, 0.0, 1.0, 3.0, 999.0])), [0.0, 0.0, 0.5, 0.75, 0.999])
+    import torch
+
+    torch.testing.assert_close(tonemap(torch.tensor([-1.0, 1.0, 3.0])), torch.tensor([0.0, 0.5, 0.75]))
+
+
+def test_quality_scale_ldr_hdr_physical():
+    from dfc.metrics import QualityScale, quality_scale
+
+    assert quality_scale(np.array([0.0, 0.4, 1.0])) == QualityScale(1.0, tonemap=False)
+    assert quality_scale(np.array([0.0, 0.5, 1000.0])) == QualityScale(1.0, tonemap=True)
+    assert quality_scale(np.array([1e-3, 3e-3]), physical=True) == QualityScale(pytest.approx(2e-3), tonemap=False)
+    assert quality_scale(np.array([-5.0, 20.0]), physical=True).data_range == 25.0
+
+
+def test_hdr_psnr_sees_colour_that_the_value_span_hides():
+    """Red (1, 0, 0) decoded as grey (0.35, 0.35, 0.35) beside a few pixels at 1000: on the linear values with the
+    span as data range that is 55 dB; tone-mapped it is 16.2 dB (pinned by hand below)."""
+    from dfc.metrics import quality_scale
+
+    truth = np.zeros((100, 3))
+    truth[:, 0] = 1.0
+    truth[:2] = 1000.0
+    test = truth.copy()
+    test[2:] = 0.35
+    linear = psnr(truth, test, data_range=1000.0)
+    assert linear > 50
+    scale = quality_scale(truth)
+    # tone-mapped: red -> (0.5, 0, 0), grey -> 0.35 / 1.35 in each channel
+    g = 0.35 / 1.35
+    mse_tm = 98 * ((0.5 - g) ** 2 + 2 * g**2) / 300
+    assert scale.psnr(truth, test) == pytest.approx(10 * math.log10(1 / mse_tm), abs=1e-9)
+    assert scale.psnr(truth, test) < 17
+    assert scale.describe() == "tone-mapped x/(1+x), data range 1"

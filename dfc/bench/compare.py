@@ -1,16 +1,41 @@
-"""Equal-size comparison of dfc against the baselines at increasing zoom (paper Figs. 1, 2, 9).
+"""Equal-size comparison of dfc against tuned neural baselines and classical codecs at increasing zoom (paper Figs. 1,
+2, 9), with the same truth, pixels and budget rules for every method.
 
-``run_bench`` fits dfc (``dfc.codec.encode_image``, decoded again with ``dfc.codec.loads``) to a raster,
-then sizes every baseline (``dfc.bench.baselines``) to the ``.dfield``'s byte count and trains it on the same
-raster with the same number of steps and batch size (``dfc.train.samplers.image_sampler``; the baselines do not know
-the curves, so they see every pixel). Each probe point gets one window per zoom ``z``: the domain's size
-divided by ``z``, centred on the probe and shifted to lie inside the domain (so zoom 1 is the domain
-itself). A window is rendered at ``render × render·aspect`` pixels, each the mean of ``spp`` points
-(``dfc.render.pixel_offsets``), for every method and — for an analytic scene — for the exact value at the
-same points, the reference its PSNR is measured against. For a user image only zoom 1 has a reference:
-the method rendered at the image's own resolution against the image; larger zooms get PSNR ``None``.
+``run_bench`` fits dfc first (``dfc.codec.encode_image``, decoded again with ``dfc.codec.loads``; sized to
+``target_bytes`` when given); its file's size is every other method's budget (else ``target_bytes`` is):
 
-PSNR uses ``dfc.metrics.data_range`` of the input (as ``dfc.codec`` does). Decode throughput is points per second of one batched forward pass, best of
+- the neural baselines (hash grid, ReLU field) are tuned for the budget by a short sweep scored at 1× on the training
+  raster, and the best is trained for ``steps`` steps or, with ``match_time``, at least as long as dfc's encode took
+  (``dfc.bench.tuning``); they see every pixel (they do not know the curves);
+- the raster (``dfc.bench.baselines.raster``) is the input area-averaged down to the largest lossless half-float EXR
+  that fits;
+- the classical codecs (JPEG XL, AVIF, WebP for SDR input, JPEG 2000; ``dfc.bench.codecs``) code the input at the
+  highest quality that fits.
+
+Measurements, the same for every method:
+
+- *1× image PSNR*: each method rendered over the whole domain at the raster's resolution with the same box filter
+  (a centred ``pixel_grid`` × ``pixel_grid`` grid of points per pixel; a stored raster of that size as stored,
+  ``dfc.bench.measure``), against the best
+  truth there is: for an analytic scene its box-filtered exact value on a finer stratified grid
+  (``TRUTH_SPP`` × ``TRUTH_SPP`` points per pixel; the training raster used 4 × 4 others), for a user image the
+  image itself. Reported on every pixel and without the pixels a curve crosses.
+- *Zoom windows*: each probe (``dfc.bench.probes``: edges, junctions, stroke tips, smooth regions) gets one window
+  per zoom ``z``, the domain's size divided by ``z`` centred on the probe and shifted inside the domain (zoom 1 is the
+  domain itself), rendered at ``render`` pixels on its longer side with ``spp`` points per pixel. With a *reference*
+  (``AnalyticReference``: an analytic scene's exact value at the same points; ``dfc.bench.rendered
+  .MitsubaReference``: Mitsuba rendering just that window) every window is measured against it; a user image alone
+  only at zoom 1 (at its own pixels, against itself), larger zooms get PSNR ``None``. A reference that is itself an
+  estimate (a Monte Carlo render) also gives its own PSNR against the noise-free truth, estimated from two
+  independent halves of its samples (``reference_psnr``): a method scoring near it is limited by the reference.
+  Stored rasters (raster, codecs) are shown through both the bicubic and the Lanczos kernel and the better one
+  counts, window by window (both are recorded).
+
+Every PSNR is measured on ``dfc.metrics.quality_scale`` of the input, as ``dfc.codec`` measures its files: colours in
+[0, 1] as they are with data range 1, HDR colours tone-mapped ``x / (1 + x)`` with data range 1. The neural baselines
+are fitted with the loss dfc's encoder uses for the input (``dfc.train.losses.auto_loss``: the MSE, or for HDR
+colours the MSE of ``sign(v) log(1 + |v|)``), and their sweep and the codecs' choice of configuration are scored on
+the same scale. Decode throughput is points per second of one batched forward pass, best of
 ``THROUGHPUT_REPEATS``. The library never prints: progress goes through ``progress(message)``.
 """
 
@@ -27,20 +52,30 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from ..metrics import data_range as signal_range
-from ..render import values_at, window_points, window_shape, zoom_window
+from ..metrics import QualityScale, quality_scale
+from ..render import window_shape, zoom_window
+from ..train.losses import auto_loss
+from .codecs import CODECS, SDR_ONLY
+from .measure import image_render, image_scores, mixed_pixels, pixel_render
+from .probes import PROBE_KINDS
 from .report import contact_sheet as contact_sheet_grid
 from .report import display, write_report
 from .report import markdown_table as table
 from .timing import best_seconds
 
-__all__ = ["METHODS", "ZOOMS", "BenchResult", "BenchSettings", "contact_sheet", "markdown_table", "run_bench",
-           "run_scene", "throughput", "write_outputs"]
+__all__ = ["LABELS", "METHODS", "TRUTH_SPP", "ZOOMS", "AnalyticReference", "BenchResult", "BenchSettings",
+           "config_label", "contact_sheet", "markdown_table", "methods_for", "run_bench", "run_scene", "scene_inputs",
+           "square_pixels", "throughput", "write_outputs"]
 
 ZOOMS = (1, 10, 33, 100)
-METHODS = ("dfc", "hashgrid", "relu", "raster")
-EVAL_BLOCK = 1 << 16
-"""Points per forward pass when rendering windows."""
+METHODS = ("dfc", "hashgrid", "relu", "raster", *CODECS)
+LABELS = {"dfc": "dfc", "hashgrid": "hash grid", "relu": "ReLU field", "raster": "raster (lossless half EXR)",
+          "jpegxl": "JPEG XL", "avif": "AVIF", "webp": "WebP", "jpeg2k": "JPEG 2000"}
+"""How reports name each method."""
+PIXEL_METHODS = ("raster", *CODECS)
+"""Methods that store a raster, shown at zoom through both interpolation kernels."""
+TRUTH_SPP = 8
+"""Points per pixel and axis of an analytic scene's 1× truth (box filter on a stratified grid)."""
 THROUGHPUT_POINTS = 1 << 16
 THROUGHPUT_REPEATS = 3
 
@@ -49,14 +84,19 @@ THROUGHPUT_REPEATS = 3
 class BenchSettings:
     """Knobs of a benchmark run (stored in ``results.json``).
 
-    steps, batch_size : optimiser steps and samples per step, the same for every method
-    size : longer side of the raster fitted for an analytic scene (default: the domain's longer side in its
-        units); ignored for a user image
+    steps, batch_size : optimiser steps (at least) and samples per step, the same for every trained method
+    size : longer side of the raster fitted for an analytic scene (default: the domain's longer side in its units);
+        ignored for a user image
     render, spp : window resolution (longer side) and points averaged per pixel
     zooms : zoom factors ≥ 1
-    methods : subset of ``METHODS``
-    target_bytes : the byte budget when "dfc" is not benchmarked; with dfc, its ``.dfield`` is sized to it
+    methods : subset of ``METHODS``; None: every method that applies to the input (``methods_for``)
+    target_bytes : the byte budget; with dfc, its ``.dfield`` is sized to it and its size is the others' budget
     max_triangles : dfc mesh size cap (default: ``dfc.geometry.triangulate``'s)
+    sweep : tune the neural baselines per budget (``dfc.bench.tuning``); sweep_steps : steps of each candidate
+        (default steps // 5)
+    match_time : neural baselines train at least as long as dfc's encode took
+    pixel_grid : the 1× image renders average a pixel_grid × pixel_grid stratified grid of points per pixel
+    keep_going : a method that cannot meet the budget is recorded under ``failed`` instead of ending the run
     """
 
     steps: int = 1000
@@ -65,31 +105,55 @@ class BenchSettings:
     render: int = 256
     spp: int = 4
     zooms: tuple[float, ...] = ZOOMS
-    methods: tuple[str, ...] = METHODS
+    methods: tuple[str, ...] | None = None
     target_bytes: int | None = None
     max_triangles: int | None = None
     seed: int = 0
     device: str = "cpu"
+    sweep: bool = True
+    sweep_steps: int | None = None
+    match_time: bool = True
+    pixel_grid: int = 4
+    keep_going: bool = False
 
-    def check(self) -> None:
-        """Raise InputError on inconsistent settings."""
-        unknown = [m for m in self.methods if m not in METHODS]
-        if not self.methods or unknown:
-            raise InputError(f"methods must be a non-empty subset of {', '.join(METHODS)}, got {list(self.methods)}")
-        if "dfc" not in self.methods and self.target_bytes is None:
+    def check(self, budgeted: bool = False) -> None:
+        """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
+        methods = METHODS if self.methods is None else self.methods
+        unknown = [m for m in methods if m not in METHODS]
+        if not methods or unknown:
+            raise InputError(f"methods must be a non-empty subset of {', '.join(METHODS)}, got {list(methods)}")
+        if "dfc" not in methods and self.target_bytes is None and not budgeted:
             raise InputError("without dfc among the methods, give the byte budget (target_bytes / --bytes)")
         if not self.zooms or any(not (math.isfinite(z) and z >= 1) for z in self.zooms):
             raise InputError(f"zooms must be finite numbers ≥ 1, got {list(self.zooms)}")
-        for key in ("steps", "batch_size", "render", "spp"):
+        for key in ("steps", "batch_size", "render", "spp", "pixel_grid"):
             if getattr(self, key) < 1:
                 raise InputError(f"{key} must be ≥ 1, got {getattr(self, key)}")
+        if self.sweep_steps is not None and self.sweep_steps < 1:
+            raise InputError(f"sweep_steps must be ≥ 1, got {self.sweep_steps}")
+        if any(m in CODECS for m in methods):
+            from .codecs import require_imagecodecs
+
+            require_imagecodecs()
+
+    @property
+    def candidate_steps(self) -> int:
+        return self.sweep_steps or max(1, self.steps // 5)
 
 
-# ----------------------------------------------------------------------------------------------- windows
-def _pixel_mean(values: np.ndarray, width: int, height: int, spp: int) -> np.ndarray:
-    return values.reshape(height, width, spp, -1).mean(axis=2).astype(np.float32)
+def methods_for(settings: BenchSettings, hdr: bool) -> tuple[str, ...]:
+    """The methods a run on an input (HDR or not) runs: ``settings.methods``, or by default every method, leaving
+    the SDR-only codecs out for HDR input. InputError when an SDR-only codec is asked for HDR input."""
+    if settings.methods is None:
+        return tuple(m for m in METHODS if not (hdr and m in SDR_ONLY))
+    bad = [m for m in settings.methods if hdr and m in SDR_ONLY]
+    if bad:
+        raise InputError(f"{', '.join(bad)} codes 8-bit SDR images only and the input is HDR; leave it out of "
+                         "--methods")
+    return tuple(m for m in METHODS if m in settings.methods)
 
 
+# ----------------------------------------------------------------------------------------------- models
 def throughput(model: nn.Module, domain, device: str, seed: int = 0) -> float:
     """Decode throughput in points per second: best of ``THROUGHPUT_REPEATS`` forward passes of
     ``THROUGHPUT_POINTS`` uniformly random points (after one warm-up pass)."""
@@ -116,7 +180,6 @@ class _Remap(nn.Module):
         return self.model((xy - o) * s + i)
 
 
-# ----------------------------------------------------------------------------------------------- fitting
 def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tuple[nn.Module, int, dict]:
     from ..codec import EncodeSettings, encode_image, loads
     from ..io.image import Image
@@ -126,44 +189,201 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
                          steps=settings.steps, batch_size=settings.batch_size, seed=settings.seed,
                          device=settings.device)
     image = Image(pixels, list(channels), hdr=float(pixels.max()) > 1.0)
-    blob, report = encode_image(image, curves, enc, fit_curves=True, callback=_step_progress("dfc", settings, progress))
+    every = max(1, settings.steps // 10)
+
+    def callback(step, loss, batch_psnr):
+        if (step + 1) % every == 0 or step + 1 == settings.steps:
+            progress(f"dfc: step {step + 1}/{settings.steps}, batch PSNR {batch_psnr:.2f} dB")
+
+    blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
     model = loads(blob, device=settings.device)
-    details = {"triangles": report.n_triangles, "vertices": report.n_vertices, "chunk_bytes": report.chunk_bytes,
-               "psnr_at_pixels": report.psnr}
+    details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,
+                          "dim": enc.dim, "feature_bits": enc.feature_bits, "mesh_bits": enc.mesh_bits,
+                          "steps": enc.steps},
+               "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds}
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}
 
 
-def _step_progress(name: str, settings: BenchSettings, progress):
-    every = max(1, settings.steps // 10)
+def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings, loss, scale, match_s,
+                progress) -> tuple[nn.Module, dict]:
+    import zstandard
 
-    def callback(step, loss, psnr):
-        if (step + 1) % every == 0 or step + 1 == settings.steps:
-            progress(f"{name}: step {step + 1}/{settings.steps}, batch PSNR {psnr:.2f} dB")
+    from .tuning import tune_baseline
 
-    return callback
-
-
-def _fit_baseline(name: str, pixels, domain, channels, n_bytes: int, settings: BenchSettings, loss: str,
-                  data_range: float, progress) -> tuple[nn.Module, dict]:
-    from ..train.samplers import image_sampler
-    from .baselines import BASELINES, fit_baseline
-
-    model = BASELINES[name].for_budget(n_bytes, domain, channels, image=pixels, seed=settings.seed,
-                                       device=settings.device)
-    model.init_mean(torch.from_numpy(pixels.reshape(-1, pixels.shape[2]).mean(axis=0)))
-    sampler = image_sampler(pixels, domain, settings.batch_size, device=settings.device, seed=settings.seed)
-    fit_baseline(model, sampler, settings.steps, loss=loss, seed=settings.seed, data_range=data_range,
-                 callback=_step_progress(name, settings, progress))
-    details = model.describe()
-    if list(model.parameters()):  # what zstd would save on the fp16 parameters
-        import zstandard
-
-        raw = b"".join(p.detach().cpu().numpy().astype("<f2").tobytes() for p in model.parameters())
-        details["zstd_bytes"] = len(zstandard.ZstdCompressor(level=19).compress(raw))
-    return model, details
+    tuned = tune_baseline(name, pixels, domain, channels, n_bytes, steps=settings.steps,
+                          sweep_steps=settings.candidate_steps, batch_size=settings.batch_size,
+                          pixel_grid=settings.pixel_grid, scale=scale, loss=loss,
+                          match_seconds=match_s if settings.match_time else None, sweep=settings.sweep,
+                          seed=settings.seed, device=settings.device, progress=progress)
+    details = {"config": tuned.config, "sweep": tuned.sweep, "train": {"loss": loss, **tuned.train}}
+    # what zstd would save on the fp16 parameters
+    raw = b"".join(p.detach().cpu().numpy().astype("<f2").tobytes() for p in tuned.model.parameters())
+    details["zstd_bytes"] = len(zstandard.ZstdCompressor(level=19).compress(raw))
+    return tuned.model, details
 
 
-# ----------------------------------------------------------------------------------------------- benchmark
+def _fit_pixels(name, pixels, domain, channels, n_bytes, settings: BenchSettings, scale):
+    """The raster or a codec's decoded stream as a ``PixelImage`` (bicubic), and its record details."""
+    from .baselines import Raster
+    from .baselines.upsample import PixelImage
+    from .codecs import encode_to_budget
+
+    if name == "raster":
+        model = Raster.for_budget(n_bytes, domain, channels, image=pixels, device=settings.device)
+        return model, {"config": model.describe()}
+    coded = encode_to_budget(name, pixels, n_bytes, scale)
+    model = PixelImage(coded.decoded, domain, channels, n_bytes=coded.n_bytes, device=settings.device)
+    return model, {"config": {"codec": name, **coded.config}, "candidates": coded.candidates,
+                   "next_bytes": coded.next_bytes, "saturated": coded.saturated}
+
+
+def _fit_all(pixels, curves, channels, methods, settings: BenchSettings, scale: QualityScale, progress):
+    """Every method fitted: (models {method: module}, record {method: bytes, fit_s, points_per_s, details},
+    failures {method: message}, dfc's file or None, the others' budget). dfc runs first: its file's size is the
+    others' budget. The neural baselines get the loss dfc's encoder uses for these pixels."""
+    loss = auto_loss(pixels)
+    models: dict[str, nn.Module] = {}
+    record: dict[str, dict] = {}
+    failed: dict[str, str] = {}
+    blob, dfc_s = None, None
+    n_bytes = settings.target_bytes
+    for method in methods:
+        progress(f"{method}: fitting" + (f" to {n_bytes} bytes" if method != "dfc" else ""))
+        clock = time.perf_counter()
+        try:
+            if method == "dfc":
+                model, size, details = _fit_dfc(pixels, curves, channels, settings, progress)
+                blob = details.pop("blob")
+                n_bytes, dfc_s = size, time.perf_counter() - clock
+            elif method in PIXEL_METHODS:
+                model, details = _fit_pixels(method, pixels, curves.domain, channels, n_bytes, settings, scale)
+            else:
+                model, details = _fit_neural(method, pixels, curves.domain, channels, n_bytes, settings, loss,
+                                             scale, dfc_s, progress)
+        except (InputError, ValueError) as e:
+            if not settings.keep_going:
+                raise InputError(f"{method}: {e}") from e
+            failed[method] = str(e)
+            progress(f"{method}: {e}")
+            continue
+        model.eval()
+        models[method] = model
+        record[method] = {"label": LABELS[method], "bytes": int(model.stored_bytes() if method != "dfc" else size),
+                          "fit_s": time.perf_counter() - clock,
+                          "points_per_s": throughput(model, curves.domain, settings.device, settings.seed), **details}
+    return models, record, failed, blob, n_bytes
+
+
+# ----------------------------------------------------------------------------------------------- measuring
+def _views(method: str, model: nn.Module) -> dict[str, nn.Module]:
+    """How a method is rendered: {variant: module}; stored rasters through each kernel, the rest as they are."""
+    if method in PIXEL_METHODS:
+        from .baselines.upsample import KERNELS
+
+        return {k: model.with_kernel(k) for k in KERNELS}
+    return {"": model}
+
+
+def _measure_windows(models, windows, pixels, domain, reference, settings: BenchSettings, scale: QualityScale,
+                     progress, cache: dict | None = None):
+    """Renders and PSNR of every window (``windows[probe][zoom]``). Returns (tiles {key: [probe][zoom] render or
+    None} with ``"reference"``, psnr {method: {zoom key: [dB or None per probe]}}, kernels {method: {zoom key:
+    [kernel per probe]}} and by_kernel {method: {kernel: {zoom key: [...]}}} for stored rasters, reference_psnr
+    {zoom key: [the reference's own estimated PSNR or None per probe]}). ``cache`` keeps the reference renders by
+    window across calls (an RD sweep measures the same windows at every budget)."""
+    cache = {} if cache is None else cache
+    tiles: dict[str, list[list]] = {k: [] for k in ["reference", *models]}
+    psnr_: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models}
+    kernels: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models
+                                           if m in PIXEL_METHODS}
+    by_kernel: dict[str, dict] = {m: {} for m in kernels}
+    reference_psnr: dict[str, list] = {_zkey(z): [] for z in settings.zooms}
+    done: dict[tuple, tuple] = {}
+    H, W = pixels.shape[:2]
+    for k, row in enumerate(windows):
+        for key in tiles:
+            tiles[key].append([])
+        for z, window in zip(settings.zooms, row):
+            progress(f"probe {k + 1}/{len(windows)}, zoom {_zkey(z)}: rendering")
+            whole = bool(np.allclose(window, domain))
+            if window not in done:
+                if reference is None and whole:  # a user image is a reference at zoom 1 only, pixel for pixel
+                    width, height = W, H
+                else:
+                    width, height = window_shape(window, settings.render)
+                ref, ref_db = (pixels if whole else None), None
+                if reference is not None:
+                    if window not in cache:
+                        cache[window] = reference.window(window, width, height, settings.spp)
+                    ref, halves = cache[window]
+                    ref_db = None if halves is None else scale.psnr(*halves) + HALVES_DB
+                renders = {}
+                for m, model in models.items():
+                    renders[m] = {v: pixel_render(view, window, width, height, settings.spp, settings.device)
+                                  for v, view in _views(m, model).items()}
+                done[window] = (ref, ref_db, renders)
+            ref, ref_db, renders = done[window]
+            tiles["reference"][-1].append(ref)
+            reference_psnr[_zkey(z)].append(ref_db)
+            for m, variants in renders.items():
+                scores = {v: None if ref is None else scale.psnr(ref, r) for v, r in variants.items()}
+                best = max(scores, key=lambda v: -math.inf if scores[v] is None else scores[v])
+                tiles[m][-1].append(variants[best])
+                psnr_[m][_zkey(z)].append(scores[best])
+                if m in kernels:
+                    kernels[m][_zkey(z)].append(best if ref is not None else None)
+                    for v, s in scores.items():
+                        by_kernel[m].setdefault(v, {_zkey(q): [] for q in settings.zooms})[_zkey(z)].append(s)
+    return tiles, psnr_, kernels, by_kernel, reference_psnr
+
+
+class _Exact:
+    """An analytic value ``(N, 2) float64 -> (N, C)`` as a model for ``pixel_render`` (tensors in, tensors out)."""
+
+    def __init__(self, value):
+        self.value = value
+
+    def __call__(self, xy):
+        return torch.from_numpy(np.asarray(self.value(xy.cpu().numpy()), dtype=np.float64))
+
+
+def square_pixels(window, longer: int) -> tuple[float, float, float, float]:
+    """``window`` (x0, y0, x1, y1) narrowed about its centre along its shorter side, by less than one of its pixels,
+    so that its render at ``longer`` pixels on the longer side (``window_shape``) has square pixels, as a renderer's
+    camera has them (``MitsubaReference.square_pixels``)."""
+    x0, y0, x1, y1 = window
+    a, b = x1 - x0, y1 - y0
+    n = max(1, math.floor(longer * min(a, b) / max(a, b) + 1e-9))  # floor: the narrowed window stays inside
+    half = 0.5 * n * max(a, b) / longer
+    if a >= b:
+        c = 0.5 * (y0 + y1)
+        return (x0, c - half, x1, c + half)
+    c = 0.5 * (x0 + x1)
+    return (c - half, y0, c + half, y1)
+
+
+HALVES_DB = 10.0 * math.log10(4.0)
+"""A Monte Carlo render of 2n samples per pixel against the noise-free truth scores this much above its two halves
+of n samples against each other (their difference has four times the variance of their mean's error)."""
+
+
+class AnalyticReference:
+    """An analytic scene's exact value ``value`` (``(N, 2)`` float64 domain points -> ``(N, C)``) as the reference
+    of every window: its mean over the very points each method's pixel is rendered at (``pixel_render``).
+
+    The protocol of a ``run_bench`` reference: ``label`` (str) and ``window(window, width, height, spp)`` ->
+    (``(height, width, C)`` float32 reference render, None or the two independent halves of a Monte Carlo render
+    whose mean it is)."""
+
+    label = "analytic"
+
+    def __init__(self, value: Callable[[np.ndarray], np.ndarray]):
+        self.value = value
+
+    def window(self, window, width: int, height: int, spp: int):
+        return pixel_render(_Exact(self.value), window, width, height, spp), None
+
+
 @dataclass
 class BenchResult:
     """``results``: the JSON-able record (see ``run_bench``); ``tiles[method][probe][zoom]``: (h, w, C)
@@ -176,24 +396,34 @@ class BenchResult:
 
 
 def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settings: BenchSettings,
-              reference: Callable[[np.ndarray], np.ndarray] | None = None, name: str = "",
-              progress: Callable[[str], None] | None = None) -> BenchResult:
-    """Fit every method to ``pixels`` at equal bytes and measure it at every probe and zoom.
+              probe_kinds: list[str] | None = None, reference=None, truth: np.ndarray | None = None,
+              truth_label: str | None = None, truth_psnr: float | None = None, name: str = "",
+              progress: Callable[[str], None] | None = None, cache: dict | None = None) -> BenchResult:
+    """Fit every method to ``pixels`` at equal bytes and measure it at 1× and at every probe and zoom.
 
     Parameters
     ----------
     pixels : (H, W, C) float32 raster covering ``curves.domain`` (what every method is fitted to)
-    curves : dfc.geometry.curves.Curves, the discontinuities (used by dfc only)
+    curves : dfc.geometry.curves.Curves, the discontinuities (used by dfc, and to find the mixed pixels)
     channels : C channel names
-    probes : (P, 2) float points in domain units, the zoom centres
+    probes : (P, 2) float points in domain units, the zoom centres; probe_kinds : P labels (default "given")
     settings : BenchSettings
-    reference : exact value ``(N, 2) -> (N, C)`` (an analytic scene's ``value``); None for a user image
+    reference : the truth of every window: ``AnalyticReference`` (an analytic scene's exact value),
+        ``dfc.bench.rendered.MitsubaReference`` (Mitsuba renders of the window), or None for a user image alone
+    truth : (H, W, C) the best box-filtered 1× truth (default: ``pixels``); truth_label : how it was made;
+        truth_psnr : its own estimated PSNR against the noise-free truth when it is a Monte Carlo render
     name : label of the input, stored in the results
+    cache : reference window renders by window, shared by the runs of an RD sweep
 
     Returns
     -------
-    BenchResult; ``results["methods"][m]`` has ``bytes`` (int), ``psnr`` ({str(zoom): [dB or None per
-    probe]}), ``points_per_s``, ``fit_s`` and method details.
+    BenchResult. ``results["methods"][m]``: ``label``, ``bytes`` (int), ``config`` (the configuration used),
+    ``image_psnr`` ({"all", "unmixed"}: dB at 1×), ``psnr`` ({str(zoom): [dB or None per probe]}),
+    ``points_per_s``, ``fit_s`` and method details (tuned baselines: ``sweep``, ``train``; codecs: ``candidates``,
+    ``next_bytes``, ``kernel`` and ``psnr_by_kernel`` per window). ``results["failed"]``: {method: why} with
+    ``keep_going``. ``results["quality_scale"]``: how every PSNR is measured (``QualityScale.describe``, with
+    ``data_range`` and ``tonemap``); ``results["zoom_truth"]``: whether windows above 1× are measured;
+    ``results["reference_psnr"]`` (Monte Carlo references only): {str(zoom): [the reference's estimated PSNR]}.
     """
     settings.check()
     progress = progress or (lambda message: None)
@@ -201,140 +431,160 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     if pixels.ndim != 3 or pixels.shape[2] != len(channels):
         raise InputError(f"expected a raster (H, W, {len(channels)}) for channels {list(channels)}, got {pixels.shape}")
     probes = np.asarray(probes, dtype=np.float64).reshape(-1, 2)
+    kinds = list(probe_kinds) if probe_kinds is not None else ["given"] * len(probes)
     domain = curves.domain
     x0, y0, x1, y1 = domain
     if len(probes) == 0 or not np.all((probes >= [x0, y0]) & (probes <= [x1, y1])):
         raise InputError(f"probes must be points inside the domain {domain}, got {probes.tolist()}")
-    data_range = signal_range(pixels)
-    models, record, blob = _fit_all(pixels, curves, channels, settings, data_range, progress)
+    if len(kinds) != len(probes):
+        raise InputError(f"expected one kind per probe, got {len(kinds)} for {len(probes)}")
+    hdr = float(pixels.max()) > 1.0
+    methods = methods_for(settings, hdr)
+    scale = quality_scale(pixels)
+    H, W = pixels.shape[:2]
+    truth = pixels if truth is None else np.asarray(truth, dtype=np.float32)
+    mixed = mixed_pixels(curves, H, W)
+    models, record, failed, blob, budget = _fit_all(pixels, curves, channels, methods, settings, scale, progress)
+    for m, model in models.items():
+        progress(f"{m}: 1x image")
+        scores = [image_scores(truth, image_render(view, domain, W, H, settings.pixel_grid, settings.device), mixed,
+                               scale) for view in _views(m, model).values()]
+        record[m]["image_psnr"] = max(scores, key=lambda s: s["all"])
     windows = [[zoom_window(domain, p, z) for z in settings.zooms] for p in probes]
-    tiles, psnr = _measure_all(models, windows, pixels, domain, reference, settings, data_range, progress)
+    if getattr(reference, "square_pixels", False):
+        windows = [[square_pixels(w, settings.render) for w in row] for row in windows]
+    tiles, scores, kernels, by_kernel, reference_psnr = _measure_windows(models, windows, pixels, domain, reference,
+                                                                         settings, scale, progress, cache)
     for m in models:
-        record[m]["psnr"] = psnr[m]
+        record[m]["psnr"] = scores[m]
+        if m in kernels:
+            record[m]["kernel"], record[m]["psnr_by_kernel"] = kernels[m], by_kernel[m]
     results = {
         "input": name,
-        "reference": "analytic" if reference is not None else "input image (zoom 1 only; larger zooms unmeasured)",
-        "data_range": data_range,
-        "hdr": float(pixels.max()) > 1.0,
-        "budget_bytes": int(record["dfc"]["bytes"] if "dfc" in record else settings.target_bytes),
+        "reference": reference.label if reference is not None else "input image (zoom 1 only; larger zooms "
+                                                                    "unmeasured)",
+        "zoom_truth": reference is not None,
+        "quality_scale": scale.describe(),
+        "data_range": scale.data_range,
+        "tonemap": scale.tonemap,
+        "hdr": hdr,
+        "budget_bytes": int(budget),
+        "image": {"width": W, "height": H, "pixel_grid": settings.pixel_grid, "mixed_pixels": int(mixed.sum()),
+                  "truth": truth_label or ("the input image" if reference is None else reference.label),
+                  "truth_psnr": truth_psnr},
         "zooms": [float(z) for z in settings.zooms],
         "probes": probes.tolist(),
+        "probe_kinds": kinds,
         "windows": [[list(w) for w in row] for row in windows],
         "settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(settings).items()},
         "methods": record,
+        "failed": failed,
     }
+    if any(v is not None for values in reference_psnr.values() for v in values):
+        results["reference_psnr"] = reference_psnr
     return BenchResult(results, tiles, blob)
 
 
-def _fit_all(pixels, curves, channels, settings: BenchSettings, data_range: float, progress):
-    """Every method fitted: (models {method: module}, record {method: bytes, fit_s, points_per_s, details},
-    dfc's file or None). dfc runs first: its file's size is the others' budget."""
-    loss = "relmse" if float(pixels.max()) > 1.0 else "mse"
-    models: dict[str, nn.Module] = {}
-    record: dict[str, dict] = {}
-    blob = None
-    n_bytes = settings.target_bytes
-    for method in [m for m in METHODS if m in settings.methods]:
-        progress(f"{method}: fitting" + (f" at {n_bytes} bytes" if method != "dfc" else ""))
-        clock = time.perf_counter()
-        if method == "dfc":
-            model, size, details = _fit_dfc(pixels, curves, channels, settings, progress)
-            blob = details.pop("blob")
-            n_bytes = size
-        else:
-            model, details = _fit_baseline(method, pixels, curves.domain, channels, n_bytes, settings, loss,
-                                           data_range, progress)
-            size = model.stored_bytes()
-        model.eval()
-        models[method] = model
-        record[method] = {"bytes": int(size), "fit_s": time.perf_counter() - clock,
-                          "points_per_s": throughput(model, curves.domain, settings.device, settings.seed), **details}
-    return models, record, blob
+def scene_inputs(scene, settings: BenchSettings, *, probes=None, progress=None) -> dict:
+    """The keyword arguments ``run_bench`` gets for an analytic scene (``dfc.bench.scenes.AnalyticScene``): its
+    box-filtered raster (longer side ``settings.size``, default the domain's longer side in its units; 4 × 4
+    points per pixel), curves, channels, probes (default ``dfc.bench.probes.labelled_probes``), exact value and
+    1× truth (``TRUTH_SPP`` × ``TRUTH_SPP`` other points per pixel)."""
+    from .probes import labelled_probes
 
-
-def _measure_all(models, windows, pixels, domain, reference, settings: BenchSettings, data_range: float, progress):
-    """(tiles {key: [probe][zoom] render or None}, psnr {method: {zoom key: [dB or None per probe]}}) of every
-    window (``windows[probe][zoom]``); a window shared by several probes (zoom 1) is rendered once."""
-    tiles: dict[str, list[list[np.ndarray | None]]] = {k: [] for k in ["reference", *models]}
-    psnr: dict[str, dict[str, list]] = {m: {_zkey(z): [] for z in settings.zooms} for m in models}
-    cache: dict[tuple, tuple[dict, dict]] = {}
-    for k, row in enumerate(windows):
-        for key in tiles:
-            tiles[key].append([])
-        for z, window in zip(settings.zooms, row):
-            progress(f"probe {k + 1}/{len(windows)}, zoom {_zkey(z)}: rendering")
-            if window not in cache:
-                cache[window] = _measure(models, window, domain, pixels, reference, settings, data_range)
-            renders, scores = cache[window]
-            for key in tiles:
-                tiles[key][-1].append(renders.get(key))
-            for m in models:
-                psnr[m][_zkey(z)].append(scores[m])
-    return tiles, psnr
-
-
-def run_scene(scene, settings: BenchSettings, *, probes=None,
-              progress: Callable[[str], None] | None = None) -> BenchResult:
-    """``run_bench`` on an analytic scene (``dfc.bench.scenes.AnalyticScene``): fitted to its box-filtered raster
-    (longer side ``settings.size``, default the domain's longer side in its units; 4 × 4 points per pixel),
-    measured against its exact value; ``probes`` default to ``dfc.bench.scenes.default_probes``."""
-    from .scenes import default_probes
-
-    settings.check()
+    progress = progress or (lambda message: None)
     x0, y0, x1, y1 = scene.domain
     longer = settings.size or max(8, round(max(x1 - x0, y1 - y0)))
     scale = longer / max(x1 - x0, y1 - y0)
     w, h = max(1, round((x1 - x0) * scale)), max(1, round((y1 - y0) * scale))
-    if progress is not None:
-        progress(f"scene {scene.name}: rendering the {w}x{h} raster to fit")
-    pixels = scene.render(w, h)
-    points = default_probes(scene) if probes is None or len(probes) == 0 else probes
-    return run_bench(pixels, scene.curves, scene.channels, probes=points, settings=settings, reference=scene.value,
-                     name=f"scene {scene.name}", progress=progress)
+    progress(f"scene {scene.name}: rendering the {w}x{h} raster to fit and its {TRUTH_SPP}x{TRUTH_SPP}-point truth")
+    if probes is None or len(probes) == 0:
+        points, kinds = labelled_probes(scene.curves)
+    else:
+        points, kinds = np.asarray(probes, dtype=np.float64), None
+    return {"pixels": scene.render(w, h), "curves": scene.curves, "channels": scene.channels, "probes": points,
+            "probe_kinds": kinds, "reference": AnalyticReference(scene.value),
+            "truth": scene.render(w, h, spp=TRUTH_SPP),
+            "truth_label": f"analytic, box filter of {TRUTH_SPP}x{TRUTH_SPP} stratified points per pixel",
+            "name": f"scene {scene.name}"}
+
+
+def run_scene(scene, settings: BenchSettings, *, probes=None,
+              progress: Callable[[str], None] | None = None) -> BenchResult:
+    """``run_bench`` on an analytic scene (``scene_inputs``), measured against its exact value."""
+    settings.check()
+    return run_bench(**scene_inputs(scene, settings, probes=probes, progress=progress), settings=settings,
+                     progress=progress)
 
 
 def _zkey(z: float) -> str:
     return str(int(z)) if float(z).is_integer() else str(z)
 
 
-def _measure(models, window, domain, pixels, reference, settings: BenchSettings, data_range: float):
-    """Renders {key: (h, w, C)} and PSNR {method: dB or None} of one window."""
-    from ..metrics import psnr
-
-    H, W = pixels.shape[:2]
-    whole = bool(np.allclose(window, domain))
-    if reference is None and whole:  # a user image is a reference at zoom 1 only, pixel for pixel
-        width, height = W, H
-    else:
-        width, height = window_shape(window, settings.render)
-    xy = window_points(window, width, height, settings.spp)
-    renders = {m: _pixel_mean(values_at(model, xy, device=settings.device, block=EVAL_BLOCK), width, height,
-                              settings.spp)
-               for m, model in models.items()}
-    if reference is not None:
-        renders["reference"] = _pixel_mean(np.asarray(reference(xy), dtype=np.float64), width, height, settings.spp)
-    elif whole:
-        renders["reference"] = pixels
-    ref = renders.get("reference")
-    scores = {m: None if ref is None else psnr(ref, renders[m], data_range=data_range) for m in models}
-    return renders, scores
-
-
 # ----------------------------------------------------------------------------------------------- outputs
+def config_label(method: str, record: dict) -> str:
+    """A short human form of a method's configuration for tables."""
+    c = record.get("config", {})
+    if method == "dfc":
+        return f"{c['triangles']} triangles, {c['dim']}-d features"
+    if method == "hashgrid":
+        return (f"L{c['levels']} F{c['features']} T{c['table_size']} ({c['dense_levels']} dense), "
+                f"MLP {c['hidden']}×{c['layers']}")
+    if method == "relu":
+        return f"{c['grid'][0]}×{c['grid'][1]} nodes × {c['features']} ch"
+    if method == "raster":
+        return f"{c['raster'][0]}×{c['raster'][1]} px"
+    if "lossless" in c and c["lossless"]:
+        return "lossless"
+    quality = {k: v for k, v in c.items() if k in ("distance", "quality", "psnr_target_db")}
+    (key, value), = quality.items()
+    knob = {"distance": "d", "quality": "q", "psnr_target_db": "target"}[key]
+    kind = "float" if c["input"] == "float" else f"{c['bits']}-bit {c['transfer']}"
+    return f"{kind}, {knob} {value:.3g}"
+
+
+def _mean(values) -> str:
+    vals = [v for v in values if v is not None]
+    return f"{np.mean(vals):.2f}" if vals else "–"
+
+
 def markdown_table(results: dict) -> str:
-    """``results.md``: one row per method — bytes, mean PSNR over the probes per zoom, decode throughput."""
+    """``results.md``: one row per method — configuration, bytes, 1× PSNR on all pixels and without the mixed ones,
+    mean PSNR over the probes per zoom, decode throughput; then the PSNR per probe kind at each zoom above 1."""
     zooms = [_zkey(z) for z in results["zooms"]]
     rows = []
     for m, r in results["methods"].items():
-        cells = []
-        for z in zooms:
-            vals = [v for v in r["psnr"][z] if v is not None]
-            cells.append(f"{np.mean(vals):.2f}" if vals else "–")
-        rows.append([m, str(r["bytes"]), *cells, f"{r['points_per_s']:.3g}"])
-    notes = (f"Reference: {results['reference']}. PSNR in dB (data range {results['data_range']:.4g}), "
-             f"mean over {len(results['probes'])} probe(s); budget {results['budget_bytes']} bytes.")
-    return table(f"dfc bench: {results['input']}", notes, ["method", "bytes", *(f"{z}×" for z in zooms), "points/s"],
-                 rows)
+        img = r["image_psnr"]
+        rows.append([r["label"], config_label(m, r), str(r["bytes"]), _mean([img["all"]]), _mean([img["unmixed"]]),
+                     *(_mean(r["psnr"][z]) for z in zooms), f"{r['points_per_s']:.3g}"])
+    own = results.get("reference_psnr")
+    if own:  # a Monte Carlo reference: its own estimated PSNR, the ceiling of what can be measured against it
+        truth_db = results["image"].get("truth_psnr")
+        rows.append(["reference itself (estimated)", "two independent halves of its samples", "–",
+                     _mean([truth_db]), "–", *(_mean(own[z]) for z in zooms), "–"])
+    kinds = [k for k in PROBE_KINDS + ("given",) if k in results["probe_kinds"]]
+    counts = ", ".join(f"{results['probe_kinds'].count(k)} {k}" for k in kinds)
+    notes = (f"Reference: {results['reference']}; 1× truth: {results['image']['truth']}. PSNR in dB "
+             f"({results['quality_scale']}); "
+             f"1× on all {results['image']['width']}×{results['image']['height']} "
+             f"pixels and without the {results['image']['mixed_pixels']} a curve crosses; zooms: mean over the "
+             f"probes ({counts}); budget {results['budget_bytes']} bytes.")
+    text = table(f"dfc bench: {results['input']}", notes,
+                 ["method", "configuration", "bytes", "1× all px", "1× unmixed", *(f"{z}× probes" for z in zooms),
+                  "points/s"], rows)
+    big = [z for z in zooms if float(z) > 1]
+    if big and results["zoom_truth"]:
+        header = ["method", *(f"{k} {z}×" for z in big for k in kinds)]
+        kind_rows = []
+        named = [(r["label"], r["psnr"]) for r in results["methods"].values()]
+        for label, psnr_ in named + ([("reference itself (estimated)", own)] if own else []):
+            cells = [_mean([v for v, kk in zip(psnr_[z], results["probe_kinds"]) if kk == k])
+                     for z in big for k in kinds]
+            kind_rows.append([label, *cells])
+        text += "\n" + table("By probe kind", "Mean PSNR (dB) over the probes of each kind.", header, kind_rows)
+    if results.get("failed"):
+        text += "\n" + "\n".join(f"- {LABELS[m]}: not run ({why})" for m, why in results["failed"].items()) + "\n"
+    return text
 
 
 def contact_sheet(result: BenchResult) -> bytes:
@@ -348,7 +598,8 @@ def contact_sheet(result: BenchResult) -> bytes:
             if key != "reference":
                 captions = [None if v is None else f"{v:.1f} dB"
                             for v in (res["methods"][key]["psnr"][_zkey(z)][p] for z in res["zooms"])]
-            rows.append((f"probe {p + 1}\n{key}", tiles, captions))
+            label = "reference" if key == "reference" else res["methods"][key]["label"]
+            rows.append((f"{res['probe_kinds'][p]} {p + 1}\n{label}", tiles, captions))
     return contact_sheet_grid([f"{_zkey(z)}x" for z in res["zooms"]], rows)
 
 

@@ -1,5 +1,6 @@
 """Benchmark reports, written the same way by every comparison: ``results.json`` (the record), ``results.md`` (a
-markdown table), ``contact.png`` (a grid of labelled tiles) and the dfc file, each atomically into one directory."""
+markdown table), ``contact.png`` (a grid of labelled tiles), the dfc file and any plots, each atomically into one
+directory."""
 
 from __future__ import annotations
 
@@ -76,17 +77,22 @@ def _finite(obj):
     return obj
 
 
-def write_report(directory: str | Path, record: dict, markdown: str, sheet: bytes, blob: bytes | None) -> list[Path]:
-    """Write ``results.json`` (``record``; non-finite numbers as null), ``results.md``, ``contact.png`` and, when
-    given, ``dfc.dfield`` into ``directory`` (created if missing), each atomically. Returns the paths written."""
+def write_report(directory: str | Path, record: dict, markdown: str, sheet: bytes | None, blob: bytes | None,
+                 extra: dict[str, bytes] | None = None) -> list[Path]:
+    """Write ``results.json`` (``record``; non-finite numbers as null), ``results.md`` and, when given,
+    ``contact.png``, ``dfc.dfield`` and the ``extra`` files {name: bytes} (plots) into ``directory`` (created if
+    missing), each atomically. Returns the paths written."""
     from ..io.atomic import write_bytes_atomic
 
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     files = {"results.json": (json.dumps(_finite(record), indent=2, allow_nan=False) + "\n").encode(),
-             "results.md": markdown.encode(), "contact.png": sheet}
+             "results.md": markdown.encode()}
+    if sheet is not None:
+        files["contact.png"] = sheet
     if blob is not None:
         files["dfc.dfield"] = blob
+    files.update(extra or {})
     for name, data in files.items():
         write_bytes_atomic(out / name, data)
     return [out / name for name in files]

@@ -246,6 +246,88 @@ def strokes_scene() -> AnalyticScene:
     return AnalyticScene("strokes", curves, ["Y"], value)
 
 
+class Stripes:
+    """``stripes``: a ``size × size`` domain cut into ``boundaries + 1`` horizontal stripes by wavy boundaries, each a
+    chain of ``pieces`` cubic Béziers from the left border to the right one — ``boundaries · pieces`` curve pieces,
+    10,000 by default — over RGB values in [0.1, 0.9], smooth inside each stripe and jumping across every boundary.
+
+    Exact at any zoom and fast at any size: a piece's control points are evenly spaced in x, so the boundary is the
+    graph ``y = B_k(x)`` of a cubic polynomial, and a point's stripe is the number of boundaries above it. Knot and
+    control heights of boundary k lie within ``WAVE`` of the stripe spacing around ``(k + 1/2) · spacing``, and a
+    Bézier lies in the hull of its control points, so boundaries never meet. ``rows`` renders whole rows at pixel
+    centres without evaluating every boundary at every pixel (one boundary crossing per column and boundary).
+    """
+
+    WAVE = 0.3
+    """Boundary amplitude, × the stripe spacing."""
+
+    def __init__(self, size: float = 1024.0, boundaries: int = 100, pieces: int = 100, seed: int = 0):
+        rng = np.random.default_rng(seed)
+        self.size, self.k, self.m = float(size), int(boundaries), int(pieces)
+        spacing = self.size / self.k
+        base = (np.arange(self.k) + 0.5)[:, None] * spacing
+        knots = base + self.WAVE * spacing * rng.uniform(-1, 1, (self.k, self.m + 1))
+        inner = base[:, :, None] + self.WAVE * spacing * rng.uniform(-1, 1, (self.k, self.m, 2))
+        self.heights = np.stack([knots[:, :-1], inner[..., 0], inner[..., 1], knots[:, 1:]], axis=2)  # (K, M, 4)
+        self.phase = rng.uniform(0, 2 * np.pi, (self.k + 1, 3))
+        self.freq = rng.uniform(0.5, 3.0, (self.k + 1, 3, 2))
+        self.channels = ["R", "G", "B"]
+
+    @property
+    def domain(self) -> tuple[float, float, float, float]:
+        return (0.0, 0.0, self.size, self.size)
+
+    def curves(self) -> Curves:
+        dx = self.size / self.m
+        x = (np.arange(self.m)[:, None] + np.arange(4)[None, :] / 3.0) * dx  # (M, 4)
+        cp = np.stack([np.broadcast_to(x, self.heights.shape), self.heights], axis=-1).reshape(-1, 4, 2)
+        n = self.k * self.m
+        return Curves(self.domain, cp, np.full(n, 3, dtype=np.int8), np.repeat(np.arange(self.k), self.m),
+                      np.tile(np.stack([np.arange(self.m), np.arange(1, self.m + 1)], 1), (self.k, 1)),
+                      names=[f"boundary {k}" for k in range(self.k)], sides=[None] * self.k, source="stripes")
+
+    def boundary_y(self, x: np.ndarray) -> np.ndarray:
+        """Heights (K, N) of every boundary at abscissae x (N,)."""
+        u = np.clip(np.asarray(x, dtype=np.float64) / self.size, 0.0, 1.0) * self.m
+        j = np.minimum(u.astype(np.int64), self.m - 1)
+        t, h = u - j, self.heights[:, j]  # (N,), (K, N, 4)
+        s = 1.0 - t
+        return s**3 * h[..., 0] + 3 * s * s * t * h[..., 1] + 3 * s * t * t * h[..., 2] + t**3 * h[..., 3]
+
+    def _colour(self, stripe: int, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """RGB (N, 3) float64 of points x, y (N,) of one stripe."""
+        f = self.freq[stripe] * (2 * np.pi / self.size)  # (3, 2)
+        return 0.5 + 0.4 * np.sin(x[:, None] * f[:, 0] + y[:, None] * f[:, 1] + self.phase[stripe])
+
+    def value(self, xy: np.ndarray) -> np.ndarray:
+        """Exact RGB (N, 3) float64 at points xy (N, 2): a point on a boundary belongs to the stripe below it."""
+        xy = np.asarray(xy, dtype=np.float64)
+        stripe = (self.boundary_y(xy[:, 0]) < xy[:, 1]).sum(axis=0)
+        out = np.empty((len(xy), 3))
+        for k in np.unique(stripe):
+            (i,) = np.nonzero(stripe == k)
+            out[i] = self._colour(k, xy[i, 0], xy[i, 1])
+        return out
+
+    def rows(self, y0: int, y1: int, width: int, height: int) -> np.ndarray:
+        """Rows ``y0 .. y1 - 1`` (y1 - y0, width, 3) float32 of a ``width × height`` raster of the domain, each pixel
+        the exact value at its centre (as ``value``, computed by counting boundary crossings per column)."""
+        x = (np.arange(width) + 0.5) * (self.size / width)
+        y = (np.arange(y0, y1) + 0.5) * (self.size / height)
+        # first row whose centre lies below each boundary, per boundary and column
+        first = np.searchsorted(y, self.boundary_y(x), side="right")  # (K, W) in 0 .. y1 - y0
+        events = np.bincount((first * width + np.arange(width)).ravel(), minlength=(y1 - y0 + 1) * width)
+        stripe = np.cumsum(events.reshape(y1 - y0 + 1, width), axis=0)[:-1]  # (h, W)
+        out = np.empty((y1 - y0, width, 3), dtype=np.float32)
+        for k in np.unique(stripe):  # a band meets a few stripes
+            r, c = np.nonzero(stripe == k)
+            out[r, c] = self._colour(k, x[c], y[r])
+        return out
+
+    def scene(self) -> AnalyticScene:
+        return AnalyticScene("stripes", self.curves(), self.channels, self.value)
+
+
 SCENES: dict[str, Callable[[], AnalyticScene]] = {
     "sample": sample_scene,
     "shapes": shapes_scene,
@@ -253,6 +335,13 @@ SCENES: dict[str, Callable[[], AnalyticScene]] = {
     "hdr": hdr_scene,
 }
 """Scene name -> factory of the analytic scenes."""
+SUMMARIES = {
+    "sample": "the shipped sample: 256 × 256 RGB in [0, 1]; a cubic blob, a triangle, a quadratic arch, a stroke",
+    "shapes": "256 × 256 RGB in [0, 1]; a cubic blob holding a circle, a quadratic lens and a star of lines",
+    "strokes": "256 × 256, one channel; three open strokes whose jump of 1 fades out inside the domain",
+    "hdr": "the shapes layout with per-region gains: linear RGB from about 0.05 to 190",
+}
+"""Scene name -> one-line summary (``dfc bench --list-scenes``)."""
 
 
 def get_scene(name: str) -> AnalyticScene:

@@ -1,11 +1,24 @@
-"""``dfc bench``: dfc against equal-size baselines (hash grid, ReLU field, raster) at increasing zoom; with
-``--solve``, against the physics-informed baselines (TanH field, SIREN, MLP) on a diffusion-curve scene."""
+"""``dfc bench``: dfc against equal-size baselines (tuned hash grid and ReLU field, lossless raster, JPEG XL, AVIF,
+WebP, JPEG 2000) at 1× and at increasing zoom, at one budget or (``--rd``) several; with ``--solve``, against the
+physics-informed baselines (TanH field, SIREN, MLP) on a diffusion-curve scene."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import click
 
-from .options import POINT, check_device
+from .options import (
+    POINT,
+    check_device,
+    json_option,
+    quiet_option,
+    read_curves_checked,
+    stdout_taken,
+    threads_option,
+    write_json,
+)
 
 
 def _zooms(ctx, param, value):
@@ -14,31 +27,74 @@ def _zooms(ctx, param, value):
     return value
 
 
+def _budgets(ctx, param, value):
+    if value is None:
+        return None
+    try:
+        budgets = sorted({int(v) for v in value.split(",") if v.strip()})
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated byte counts, got {value!r}") from None
+    if not budgets or budgets[0] < 1:
+        raise click.BadParameter("byte budgets must be positive")
+    return budgets
+
+
 @click.command()
 @click.argument("input_path", metavar="[INPUT]", required=False, type=click.Path(exists=True, dir_okay=False))
-@click.option("--curves", "curves_path", type=click.Path(exists=True, dir_okay=False),
-              help="Discontinuity curves of INPUT (SVG, JSON or diffusion-curve XML).")
-@click.option("--scene", help="Benchmark an analytic scene instead of INPUT (see --list-scenes).")
+@click.option("--curves", "curves_path", callback=lambda ctx, param, value: value if value in (None, "auto") else
+              click.Path(exists=True, dir_okay=False).convert(value, param, ctx),
+              help="Discontinuity curves of INPUT (SVG, JSON or diffusion-curve XML); or 'auto': dfc is fitted with "
+                   "the curves dfc curves' extractor finds, at its defaults, in the raster it fits (INPUT, an "
+                   "analytic scene's raster, a Mitsuba scene's render) while the probes and references stay those of "
+                   "the scene's own curves (a file named auto: ./auto).")
+@click.option("--scene", help="Benchmark an analytic scene (a name, see --list-scenes), or a Mitsuba 3 scene "
+              "(SCENE.xml, pip install 'dfc[render]'): every zoom is then measured against Mitsuba rendering just "
+              "that window; INPUT, when given, is its render to fit (else rendered at --size with --scene-spp) and "
+              "--curves its curves (else extracted from the scene as dfc curves does).")
+@click.option("--scene-spp", type=click.IntRange(min=2), default=256, show_default=True,
+              help="Mitsuba scenes: samples per pixel of every render (the references, the 1x truth, the input "
+              "when rendered here); each reference is two independent halves, whose difference estimates its own "
+              "PSNR (the table's 'reference itself' row).")
+@click.option("--sensor", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Mitsuba scenes: which sensor (a perspective camera) renders, by index.")
 @click.option("--solve", "solve_path", type=click.Path(exists=True, dir_okay=False),
               help="Physics-informed solve of this diffusion-curve scene (XML, or JSON with side values) by dfc "
               "and the TanH field, SIREN and MLP baselines, against the finite-difference reference.")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
-              help="Zoom centre X,Y in domain units (repeatable; default for scenes: points on discontinuities).")
+              help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
+              "tips, and in smooth regions, found from the curves).")
 @click.option("-o", "--output", type=click.Path(file_okay=False), help="Directory for results.json, results.md, "
               "contact.png and dfc.dfield (created if missing).")
 @click.option("--zoom", "zooms", type=float, multiple=True, callback=_zooms,
               help="Zoom factor (repeatable)  [default: 1, 10, 33, 100].")
-@click.option("--methods", help="Comma-separated methods to run  [default: dfc,hashgrid,relu,raster; with "
-              "--solve: dfc,tanh_field,siren,tanh_mlp].")
+@click.option("--methods", help="Comma-separated methods to run  [default: dfc,hashgrid,relu,raster,jpegxl,avif,"
+              "webp,jpeg2k (webp only for SDR input); with --solve: dfc,tanh_field,siren,tanh_mlp]. The classical "
+              "codecs need the bench extra: pip install 'dfc[bench]'.")
 @click.option("--bytes", "target_bytes", type=click.IntRange(min=1),
               help="Byte budget; with dfc, its file is sized to it (else every method gets the .dfield's size).")
+@click.option("--rd", is_flag=True, help="Rate-distortion sweep: run the comparison at every --budgets and write "
+              "the curves (results.json) and plots of PSNR against bytes (rd.png, rd_probes.png), plus each "
+              "budget's outputs in DIR/budget_<bytes>/.")
+@click.option("--budgets", callback=_budgets, help="Comma-separated byte budgets of --rd  [default: 0.25, 0.5, 1, "
+              "2 and 4 bits per input pixel].")
 @click.option("--steps", type=click.IntRange(min=1), default=1000, show_default=True,
-              help="Optimiser steps of every method.")
+              help="Optimiser steps of every trained method (the neural baselines at least; see --match-time).")
+@click.option("--sweep/--no-sweep", default=True, show_default=True,
+              help="Tune the hash grid and the ReLU field per budget: try each candidate configuration for "
+              "--sweep-steps and train the best at 1x on the input in full.")
+@click.option("--sweep-steps", type=click.IntRange(min=1), help="Steps of each sweep candidate  [default: --steps / 5].")
+@click.option("--match-time/--no-match-time", default=True, show_default=True,
+              help="Train the neural baselines at least as long as dfc's encode took (more steps than --steps "
+              "when theirs are faster).")
+@click.option("--pixel-grid", type=click.IntRange(min=1), default=4, show_default=True,
+              help="The 1x image PSNR renders every method as the mean over a K x K grid of points in each pixel "
+              "(a box filter, as the scenes' rasters are made).")
 @click.option("--batch-size", type=click.IntRange(min=1), help="Samples per step  [default: 16384; with --solve: "
               "1024 interior and 1024 boundary points].")
 @click.option("--size", type=click.IntRange(min=8), help="Scenes: longer side of the raster fitted  "
-              "[default: the domain's longer side in its units]; --solve: of the reference grid [default: 256].")
+              "[default: the domain's longer side in its units; a Mitsuba scene's film]; --solve: of the reference "
+              "grid [default: 256].")
 @click.option("--render", type=click.IntRange(min=8), default=256, show_default=True,
               help="Window resolution (longer side, pixels).")
 @click.option("--spp", type=click.IntRange(min=1), default=4, show_default=True, help="Points averaged per pixel.")
@@ -46,83 +102,171 @@ def _zooms(ctx, param, value):
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds every fit and the sampling.")
 @click.option("--device", default="cpu", show_default=True, help="torch device (cpu, cuda, cuda:1, ...).")
 @click.option("--fit-curves-to-image", is_flag=True, help="Scale the curves' domain onto INPUT's [0, W] x [0, H].")
-@click.option("-q", "--quiet", is_flag=True, help="No progress on stderr.")
-def command(input_path, curves_path, scene, solve_path, list_scenes, probes, output, zooms, methods, target_bytes,
-            steps, batch_size, size, render, spp, max_triangles, seed, device, fit_curves_to_image, quiet):
-    """Compare dfc with other methods at equal file size: fit dfc and every baseline at the .dfield's byte count,
-    render each probe window at each zoom and write the PSNR table (results.json, results.md) and a contact sheet
-    (contact.png) to OUTPUT. (Speed and scale of dfc's own stages: dfc benchmark.)
+@threads_option
+@json_option
+@quiet_option
+def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_scenes, probes, output, zooms,
+            methods, target_bytes, rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size,
+            render, spp, max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
+    """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
+    byte count (tuned neural baselines, a lossless raster, classical codecs at the highest quality that fits),
+    measure each at 1x on the whole image and in a window around each probe at each zoom, and write the PSNR tables
+    (results.json, results.md) and a contact sheet (contact.png) to OUTPUT. With --rd, the same at several budgets,
+    with rate-distortion plots. (Speed and scale of dfc's own stages: dfc benchmark.)
 
     \b
-    dfc bench INPUT --curves CURVES --probe X,Y [--probe ...] -o DIR
+    dfc bench INPUT --curves CURVES [--probe X,Y ...] -o DIR
     dfc bench --scene NAME -o DIR
+    dfc bench --scene SCENE.xml [RENDER.exr] [--curves CURVES] [--scene-spp N] -o DIR
+    dfc bench --scene NAME --rd [--budgets 2048,4096,...] -o DIR
     dfc bench --solve SCENE -o DIR
     dfc bench --list-scenes
 
-    Scenes are measured against their exact value at every zoom; a user image only at zoom 1 (against
-    itself, rendered at its own resolution) — larger zooms are rendered but have no reference. --solve trains
-    every method on the Laplace equation's loss alone and measures it against a finite-difference solve
-    (--render, --spp and --zoom do not apply).
+    Probes default to points on edges, at junctions and stroke tips, and in smooth regions, found from the curves.
+    Analytic scenes are measured against their exact value at every zoom, Mitsuba scenes against Mitsuba rendering
+    each window (a film scaled up with a crop window); a user image alone only at zoom 1 (against itself, rendered
+    at its own resolution) — larger zooms are rendered but have no reference. --solve trains every method
+    on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
+    --zoom do not apply). --json also writes results.json's record to a file (- for standard output, the table then
+    going to standard error).
     """
-    from ..bench.scenes import SCENES
+    from ..bench.scenes import SCENES, SUMMARIES
 
     if list_scenes:
-        for name, factory in SCENES.items():
-            click.echo(f"{name:10s} {(factory.__doc__ or '').split(':', 1)[-1].strip().splitlines()[0]}")
+        for name in SCENES:
+            click.echo(f"{name:10s} {SUMMARIES[name]}")
         return
-    if sum(v is not None for v in (input_path, scene, solve_path)) != 1:
-        raise click.UsageError("give one of INPUT (with --curves), --scene NAME and --solve SCENE")
+    from ..bench.rendered import is_scene_file
+
+    mitsuba = scene is not None and is_scene_file(scene)
+    if sum(v is not None for v in (None if mitsuba else input_path, scene, solve_path)) != 1:
+        raise click.UsageError("give one of INPUT (with --curves), --scene NAME|SCENE.xml and --solve SCENE")
+    if not mitsuba and (scene_spp != 256 or sensor != 0):
+        raise click.UsageError("--scene-spp and --sensor apply to a Mitsuba scene (--scene SCENE.xml)")
     if output is None:
         raise click.UsageError("missing option '-o' / '--output'")
     if solve_path is not None:
-        if curves_path or fit_curves_to_image or probes or zooms or target_bytes:
-            raise click.UsageError("--curves, --fit-curves-to-image, --probe, --zoom and --bytes do not apply to "
-                                   "--solve")
-        _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet)
+        if curves_path or fit_curves_to_image or probes or zooms or target_bytes or rd or budgets:
+            raise click.UsageError("--curves, --fit-curves-to-image, --probe, --zoom, --bytes, --rd and --budgets do "
+                                   "not apply to --solve")
+        _solve(solve_path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet)
         return
-    if input_path is not None and curves_path is None:
+    if input_path is not None and curves_path is None and not mitsuba:
         raise click.UsageError("INPUT needs --curves")
-    if scene is not None and (curves_path or fit_curves_to_image):
-        raise click.UsageError("--curves and --fit-curves-to-image apply to INPUT, not to --scene")
-    from ..bench.compare import METHODS, ZOOMS, BenchSettings, markdown_table, run_bench, run_scene, write_outputs
+    if scene is not None and (fit_curves_to_image or (curves_path not in (None, "auto") and not mitsuba)):
+        raise click.UsageError("--curves (but auto) and --fit-curves-to-image apply to INPUT, not to --scene NAME")
+    if rd and target_bytes:
+        raise click.UsageError("--rd sweeps --budgets; --bytes applies to a single comparison")
+    if budgets and not rd:
+        raise click.UsageError("--budgets applies to --rd")
+    from ..bench.compare import ZOOMS, BenchSettings, markdown_table, run_bench, scene_inputs, write_outputs
 
     settings = BenchSettings(steps=steps, batch_size=batch_size or 1 << 14, size=size, render=render, spp=spp,
-                             zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, METHODS),
-                             target_bytes=target_bytes, max_triangles=max_triangles, seed=seed,
-                             device=check_device(device))
-    settings.check()
+                             zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, None), target_bytes=target_bytes,
+                             max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=sweep,
+                             sweep_steps=sweep_steps, match_time=match_time, pixel_grid=pixel_grid)
+    if rd:
+        from ..bench.rd import require_matplotlib
+
+        require_matplotlib()
+    settings.check(budgeted=rd)
 
     def progress(message: str) -> None:
         if not quiet:
             click.echo(f"bench: {message}", err=True)
 
-    if scene is not None:
+    auto = curves_path == "auto"
+    if mitsuba:
+        inputs = _mitsuba_inputs(scene, input_path, None if auto else curves_path, settings, probes, scene_spp,
+                                 sensor, quiet, progress)
+    elif scene is not None:
         from ..bench.scenes import get_scene
 
-        result = run_scene(get_scene(scene), settings, probes=probes, progress=progress)
+        inputs = scene_inputs(get_scene(scene), settings, probes=probes, progress=progress)
     else:
-        from ..bench.scenes import curve_probes
+        from ..bench.probes import labelled_probes
         from ..codec import check_domain
-        from ..geometry.curves import read_curves
         from ..io.image import read_image
 
         image = read_image(input_path)
-        curves = check_domain(read_curves(curves_path), image.width, image.height, fit_curves_to_image)
-        result = run_bench(image.pixels, curves, image.channels, probes=probes or curve_probes(curves),
-                           settings=settings, name=input_path, progress=progress)
-    for path in write_outputs(result, output):
+        curves = _auto_curves(image.pixels, (0.0, 0.0, float(image.width), float(image.height)), progress) if auto \
+            else check_domain(read_curves_checked(curves_path, quiet), image.width, image.height, fit_curves_to_image)
+        points, kinds = (probes, None) if probes else labelled_probes(curves)
+        inputs = {"pixels": image.pixels, "curves": curves, "channels": image.channels, "probes": points,
+                  "probe_kinds": kinds, "name": input_path}
+    if auto and (mitsuba or scene is not None):
+        inputs["curves"] = _auto_curves(inputs["pixels"], inputs["curves"].domain, progress)
+    if auto:
+        inputs["name"] = f"{inputs['name']}, dfc fitted with curves found in the raster (--curves auto)"
+    if rd:
+        from ..bench.rd import default_budgets, rd_markdown, run_rd, write_rd
+
+        h, w = inputs["pixels"].shape[:2]
+        result = run_rd(inputs, budgets or default_budgets(w, h), settings, progress)
+        paths, text = write_rd(result, output), rd_markdown(result.results)
+    else:
+        result = run_bench(**inputs, settings=settings, progress=progress)
+        paths, text = write_outputs(result, output), markdown_table(result.results)
+    for path in paths:
         progress(f"wrote {path}")
-    click.echo(markdown_table(result.results), nl=False)
+    _finish(text, output, json_path)
 
 
-def _methods(value: str | None, default: tuple[str, ...]) -> tuple[str, ...]:
+def _auto_curves(pixels, domain, progress):
+    """``--curves auto``: the curves ``image_curves`` finds at its defaults in ``pixels`` (H, W, C), scaled from
+    pixels onto ``domain`` (x0, y0, x1, y1)."""
+    from ..errors import ExtraError
+    from ..geometry.curves import Curves
+
+    progress("finding the curves in the raster (dfc curves' defaults)")
+    try:
+        from ..geometry.sources.raster import image_curves
+
+        found = image_curves(pixels)
+    except ImportError:
+        raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
+    h, w = pixels.shape[:2]
+    x0, y0, x1, y1 = domain
+    cp = found.control_points * [(x1 - x0) / w, (y1 - y0) / h] + [x0, y0]
+    return Curves(tuple(map(float, domain)), cp, found.degree, found.curve, found.t_range, found.names, found.sides,
+                  source="auto")
+
+
+def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, sensor, quiet, progress) -> dict:
+    """``run_bench``'s inputs for a Mitsuba scene (``dfc.bench.rendered.mitsuba_inputs``), with its render and
+    curves when given."""
+    from pathlib import Path
+
+    from ..bench.rendered import mitsuba_inputs
+
+    if not Path(scene).is_file():
+        raise click.BadParameter(f"{scene}: no such file", param_hint="'--scene'")
+    image = None
+    if input_path is not None:
+        from ..io.image import read_image
+
+        image = read_image(input_path)
+    curves = read_curves_checked(curves_path, quiet) if curves_path else None
+    return mitsuba_inputs(scene, settings, pixels=None if image is None else image.pixels,
+                          channels=None if image is None else image.channels, curves=curves, probes=probes, spp=spp,
+                          sensor=sensor, progress=progress)
+
+
+def _finish(table: str, output: str, json_path: str | None) -> None:
+    """Print the table (to standard error when ``--json -`` takes standard output) and copy results.json's record to
+    ``json_path``."""
+    click.echo(table, nl=False, err=stdout_taken(json_path))
+    if json_path:
+        write_json(json_path, json.loads((Path(output) / "results.json").read_text()))
+
+
+def _methods(value: str | None, default):
     return default if value is None else tuple(m.strip() for m in value.split(",") if m.strip())
 
 
-def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, device, quiet) -> None:
+def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, device, json_path, quiet) -> None:
     """``dfc bench --solve``: see ``dfc.bench.solve``."""
     from ..bench.solve import SOLVE_METHODS, SolveBenchSettings, markdown_table, run_solve_bench, write_outputs
-    from ..geometry.curves import read_curves
 
     settings = SolveBenchSettings(steps=steps, batch_size=batch_size or 1 << 10, size=size or 256,
                                   methods=_methods(methods, SOLVE_METHODS), max_triangles=max_triangles, seed=seed,
@@ -133,7 +277,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
         if not quiet:
             click.echo(f"bench: {message}", err=True)
 
-    results = run_solve_bench(read_curves(path), settings, name=path, progress=progress)
+    results = run_solve_bench(read_curves_checked(path, quiet), settings, name=path, progress=progress)
     for written in write_outputs(results, output):
         progress(f"wrote {written}")
-    click.echo(markdown_table(results), nl=False)
+    _finish(markdown_table(results), output, json_path)

@@ -9,13 +9,15 @@ from ..bench import speed as benchmarks
 
 
 class _BenchGroup(click.Group):
+    """One command per module of ``dfc.bench.speed``; a module ``a_b`` is the command ``a-b``."""
+
     def list_commands(self, ctx):
-        return sorted(m.name for m in pkgutil.iter_modules(benchmarks.__path__))
+        return sorted(m.name.replace("_", "-") for m in pkgutil.iter_modules(benchmarks.__path__))
 
     def get_command(self, ctx, name):
         if name not in self.list_commands(ctx):
             return None
-        return importlib.import_module(f"dfc.bench.speed.{name}").command
+        return importlib.import_module(f"dfc.bench.speed.{name.replace('-', '_')}").command
 
 
 @click.group(cls=_BenchGroup)

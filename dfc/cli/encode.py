@@ -2,33 +2,50 @@
 
 from __future__ import annotations
 
-import json
+import contextlib
+import os
+import sys
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import click
+import numpy as np
 
-from .options import check_device, progress_bar
-
-SAMPLE_EXTENSIONS = (".npz",)
-"""``.npz`` inputs: a sample set or a frame sequence, told apart by their keys. Images go by their extension;
-anything else is read as a FEM mesh (meshio)."""
+from ..io.atomic import write_bytes_atomic
+from .options import (
+    binary_stream,
+    check_device,
+    json_option,
+    note,
+    progress_bar,
+    quiet_option,
+    read_curves_checked,
+    shown,
+    stdin_file,
+    stdout_taken,
+    threads_option,
+    write_json,
+)
 
 
 def input_kind(paths: tuple[str, ...], times) -> str:
-    """"image", "frames", "samples" or "fem" for the INPUT paths (several paths: images with --times)."""
-    from ..io.frames import npz_kind
-    from ..io.image import EXR_EXTENSIONS, PIL_EXTENSIONS
+    """"image", "frames", "samples" or "fem" for the INPUT paths (several paths: images with --times).
 
-    image_extensions = EXR_EXTENSIONS + PIL_EXTENSIONS
+    Each file is recognised by its content (magic bytes: EXR, PNG, JPEG, zip/npz, VTK, VTU, XDMF, Gmsh; see
+    ``dfc.io.sniff``), else by its extension; a ``.npz`` holds a sample set or a frame sequence, told apart by its
+    keys; anything else is read as a FEM mesh (meshio)."""
+    from ..io.frames import npz_kind
+    from ..io.sniff import IMAGE_KINDS, file_kind
+
+    kinds = [file_kind(p) for p in paths]
     if len(paths) > 1 or times is not None:
-        if not all(p.lower().endswith(image_extensions) for p in paths) or times is None or len(times) != len(paths):
+        if not all(k in IMAGE_KINDS for k in kinds) or times is None or len(times) != len(paths):
             raise click.UsageError("several INPUTs are the frames of a sequence: give images and --times with one "
                                    "time per image")
         return "frames"
-    path = paths[0].lower()
-    if path.endswith(image_extensions):
+    if kinds[0] in IMAGE_KINDS:
         return "image"
-    if path.endswith(SAMPLE_EXTENSIONS):
+    if kinds[0] == "npz":
         return npz_kind(paths[0])
     return "fem"
 
@@ -48,12 +65,25 @@ def _weight_bits(ctx, param, value):
     return value
 
 
+def _curves_arg(ctx, param, value):
+    """``--curves``: required (the message names ``auto``); a file that exists, ``-`` or ``auto``."""
+    if value is None:
+        raise click.UsageError("Missing option '--curves': give the discontinuity curves (SVG, JSON or diffusion-curve "
+                               "XML), or for an image --curves auto to find them in it")
+    if value in ("auto", "-"):
+        return value
+    return click.Path(exists=True, dir_okay=False).convert(value, param, ctx)
+
+
 @click.command()
 @click.argument("input_paths", metavar="INPUT...", nargs=-1, required=True,
-                type=click.Path(exists=True, dir_okay=False))
-@click.option("--curves", "curves_path", required=True, type=click.Path(exists=True, dir_okay=False),
-              help="Discontinuity curves: SVG, JSON (spec/curves.md) or diffusion-curve XML.")
-@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="The .dfield file to write.")
+                type=click.Path(exists=True, dir_okay=False, allow_dash=True))
+@click.option("--curves", "curves_path", callback=_curves_arg,
+              help="Discontinuity curves: SVG, JSON (spec/curves.md) or diffusion-curve XML (- reads standard input); "
+                   "or 'auto' (images): find them in the image with dfc curves' defaults, recorded in the file "
+                   "(a file named auto: ./auto).")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, allow_dash=True),
+              help="The .dfield file to write (- for standard output).")
 @click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on the mesh's triangle count.")
 @click.option("--max-area", type=click.FloatRange(min=0, min_open=True), help="Largest triangle area (domain units²).")
 @click.option("--edge-length", type=click.FloatRange(min=0, min_open=True), help="Target edge length (domain units).")
@@ -70,12 +100,13 @@ def _weight_bits(ctx, param, value):
 @click.option("--feature-coding", type=click.Choice(["predicted", "plain"]), default="predicted", show_default=True,
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
 @click.option("--refine", type=click.IntRange(0, 16), default=0, show_default=True,
-              help="Image input: rounds of error-driven refinement after the fit (split the triangles with the "
-                   "largest error, refit for half the steps); each round adds triangles, so the file grows.")
-@click.option("--loss", type=click.Choice(["auto", "mse", "relmse"]), default="auto", show_default=True,
-              help="auto: relative MSE for HDR inputs (values > 1), else MSE.")
+              help="Image input read whole: rounds of error-driven refinement after the fit (split the triangles with "
+                   "the largest error, refit for half the steps); each round adds triangles, so the file grows.")
+@click.option("--loss", type=click.Choice(["auto", "mse", "relmse", "logmse"]), default="auto", show_default=True,
+              help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
 @click.option("--device", default="cpu", show_default=True, help="torch device for the fit (cpu, cuda, cuda:1, ...).")
+@threads_option
 @click.option("--channels", help="Comma-separated image channels to encode (default: R,G,B[,A] or all).")
 @click.option("--fit-curves-to-image", is_flag=True,
               help="Scale the curves' domain onto the image's [0, W] x [0, H] instead of refusing a mismatch.")
@@ -83,75 +114,317 @@ def _weight_bits(ctx, param, value):
 @click.option("--fields", help="FEM input: comma-separated point-data arrays to encode [default: all].")
 @click.option("--fem-sampling", type=click.Choice(["linear", "nearest"]), default="linear", show_default=True,
               help="FEM input: values of the training points inside an element (never across a barrier).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the summary as JSON here.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@click.option("--reference", "reference_path", type=click.Path(exists=True, dir_okay=False),
+              help="Sample sets: exact values on a pixel grid over the domain (.exr, or .npz as dfc wos --reference "
+                   "writes); the summary adds the file's PSNR against them.")
+@click.option("--epoch-pixels", type=click.IntRange(min=1),
+              help="Image input read out of core: stratified pixels drawn per epoch, band by band  [default: sized to "
+                   "512 MiB of samples, at most every pixel]. EXR images above 4096 x 4096 pixels are always read so.")
+@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Image input: train data-parallel on N local ranks (torch.distributed: gloo on CPU, NCCL with "
+                   "--device cuda, one GPU per rank), each reading its own bands; --batch-size is split between them. "
+                   "Across machines use torchrun (README).")
+@json_option
+@quiet_option
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
             dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, device, channels,
-            fit_curves_to_image, times, fields, fem_sampling, json_path, quiet):
-    """Encode INPUT with the discontinuity CURVES into OUTPUT. INPUT is an EXR/PNG/JPEG image; a .npz sample set
-    or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
-    triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling).
+            fit_curves_to_image, times, fields, fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
+    """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
+    dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
+    sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
+    triangle mesh with point data that meshio reads (.vtu, .msh, .xdmf, ...; --fields, --fem-sampling). Files
+    are recognised by their content, else by their extension; - reads INPUT from standard input.
 
     The mesh is built first (size knobs: --max-triangles, --max-area, --edge-length or --target-bytes; default
-    about 2,000 triangles plus those the curves force), then a feature field is fitted on it and written. The
-    summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written file, decoded again,
-    against the input (images: rendered as `dfc decode` does at the input's size, averaging the pixels a curve
-    crosses; sample positions, FEM nodes; every frame of a sequence).
+    about 2,000 triangles plus those the curves force, fewer for small inputs), then a feature field is fitted on
+    it and written. The summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written
+    file, decoded again, against the input at its pixel centres (FEM nodes; every frame of a sequence), for HDR
+    images on tone-mapped values x/(1+x); for a sample set against the 10 % of the samples left out of the fit,
+    and against --reference; for an image read out of core (--epoch-pixels, --workers, torchrun, or an EXR above
+    4096 x 4096) at its held-out pixels. An existing OUTPUT is replaced, atomically, once the new file is complete.
     """
-    from ..codec import EncodeSettings, encode_fem, encode_frames, encode_image, encode_samples
-    from ..geometry.curves import read_curves
-    from ..io.atomic import write_bytes_atomic
+    from ..codec import EncodeSettings
     from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
         raise click.UsageError("give at most one of --max-area, --edge-length and --target-bytes")
-    if not output.lower().endswith(".dfield"):
+    if output != "-" and not output.lower().endswith(".dfield"):
         raise click.BadParameter(f"must end in .dfield, got {output!r}", param_hint="'-o' / '--output'")
-    kind = input_kind(input_paths, times)
-    if kind in ("samples", "fem") and (channels or fit_curves_to_image):
-        raise click.UsageError(f"--channels and --fit-curves-to-image apply to images, not {kind} input")
-    if kind == "frames" and len(input_paths) == 1 and channels:
-        raise click.UsageError("--channels applies to images; a frames .npz is encoded with all its channels")
-    if kind != "fem" and (fields or fem_sampling != "linear"):
-        raise click.UsageError("--fields and --fem-sampling apply to FEM input")
-    settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
-                              target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size, dim=dim,
-                              feature_bits=feature_bits, mesh_bits=mesh_bits, weight_bits=weight_bits or None,
-                              feature_coding=feature_coding, refine=refine, loss=loss, seed=seed,
-                              device=check_device(device))
-    curves = read_curves(curves_path)
-    signal = _read_input(kind, input_paths, times, channels.split(",") if channels else None,
-                         fields.split(",") if fields else None)
-    if refine and kind != "image":
-        raise click.UsageError("--refine applies to image input")
-    total_steps = settings.steps + refine * (settings.refine_steps or max(1, settings.steps // 2))
-    with progress_bar(total_steps, "fit", quiet) as bar:
-        def callback(step, loss_value, psnr):
-            bar.update(1)
-            if step % 25 == 0:
-                bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
-
-        if kind == "samples":
-            blob, report = encode_samples(signal, curves, settings, callback=callback)
-        elif kind == "fem":
-            blob, report = encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
-        elif kind == "frames":
-            blob, report = encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+    if [*input_paths, curves_path].count("-") > 1:
+        raise click.UsageError("standard input (-) can be read once: give INPUT or --curves as -, not both")
+    with stdin_file("-") if input_paths == ("-",) else contextlib.nullcontext() as spooled:
+        paths = (spooled,) if spooled else input_paths
+        kind = input_kind(paths, times)
+        if kind in ("samples", "fem") and (channels or fit_curves_to_image):
+            raise click.UsageError(f"--channels and --fit-curves-to-image apply to images, not {kind} input")
+        if kind == "frames" and len(paths) == 1 and channels:
+            raise click.UsageError("--channels applies to images; a frames .npz is encoded with all its channels")
+        if kind != "fem" and (fields or fem_sampling != "linear"):
+            raise click.UsageError("--fields and --fem-sampling apply to FEM input")
+        if kind != "samples" and reference_path:
+            raise click.UsageError(f"--reference applies to sample sets, not {kind} input")
+        if curves_path == "auto" and kind != "image":
+            raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
+        settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
+                                  target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size,
+                                  dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits,
+                                  weight_bits=weight_bits or None, feature_coding=feature_coding, refine=refine,
+                                  loss=loss, seed=seed, device=check_device(device), epoch_pixels=epoch_pixels,
+                                  workers=workers)
+        if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
+            raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
+                                     param_hint="'--workers'")
+        if workers > 1 and output == "-":
+            raise click.UsageError("--workers writes the file from its first rank: give -o OUT.dfield, not -")
+        out_of_core = _out_of_core(kind, paths, epoch_pixels, workers)
+        if refine and (kind != "image" or out_of_core):
+            raise click.UsageError("--refine applies to an image read whole (not out of core: --epoch-pixels, "
+                                   "--workers, torchrun, EXR above 4096x4096)" if kind == "image" else
+                                   f"--refine applies to image input, not {kind}")
+        if curves_path == "auto" and out_of_core:
+            raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
+                                   "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
+        signal = curves_info = None
+        if not out_of_core:
+            signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
+                                 fields.split(",") if fields else None)
+        if curves_path == "auto":
+            curves, curves_info = _auto_curves(signal)
         else:
-            blob, report = encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
-    write_bytes_atomic(output, blob)
-    unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
-    click.echo(f"wrote {output}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}")
-    for name, size in report.chunk_bytes.items():
-        click.echo(f"  {name}  {size:>10} bytes")
-    click.echo(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
-    click.echo(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB (data range {report.data_range:.4g})")
-    click.echo("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in report.seconds.items()))
+            curves = read_curves_checked(curves_path, quiet)
+        input_bytes = sum(os.path.getsize(p) for p in paths)
+        if out_of_core:
+            job = BandJob(paths[0], channels.split(",") if channels else None, curves, settings,
+                          fit_curves_to_image, output, quiet)
+            blob, report = run_band_job(job)  # read band by band while the input (or its spooled copy) is there
+            if report is None:  # a rank other than 0 of a torchrun run: rank 0 writes and reports
+                return
+        else:
+            reference = _read_reference(reference_path, curves.domain) if reference_path else None
+            blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
+                                             reference, curves_info, quiet)
+    if blob is None:  # --workers: rank 0 wrote the file
+        pass
+    elif output == "-":
+        sys.stdout.flush()
+        out = binary_stream(sys.stdout)
+        out.write(blob)
+        out.flush()
+    else:
+        write_bytes_atomic(output, blob)
+    _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path))
+    if report.total_bytes > input_bytes:
+        note(f"the file ({report.total_bytes} bytes) is larger than the input ({input_bytes} bytes): on an input this "
+             f"small the header and decoder weigh more than the data", quiet)
     if json_path:
         from dataclasses import asdict
 
-        write_bytes_atomic(json_path, (json.dumps({"output": str(Path(output)), **asdict(report)}, indent=2)
-                                       + "\n").encode())
+        write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
+                               **({"curves": curves_info} if curves_info else {}), **asdict(report)})
+
+
+def _auto_curves(image):
+    """``--curves auto``: the image's curves by the raster extractor at its defaults, and the record of that for the
+    file's encoder info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, counts)."""
+    from dataclasses import replace
+
+    from ..errors import ExtraError
+
+    try:
+        from ..geometry.sources.raster import RasterSettings, image_curves
+
+        extractor = RasterSettings()
+        curves = image_curves(image.pixels, extractor)
+    except ImportError:
+        raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
+    record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
+              "settings": extractor.to_dict(), "curves": curves.n_curves, "pieces": len(curves)}
+    return replace(curves, source="auto"), record
+
+
+def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool) -> None:
+    """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times; where the curves came
+    from when they were extracted."""
+    unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
+    lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
+    if curves_info:
+        lines.append(f"curves: {curves_info['curves']} curves ({curves_info['pieces']} pieces) found in the image by "
+                     "dfc curves' extractor at its defaults (recorded in the file; see them with dfc curves IMAGE "
+                     "--preview P.png)")
+    lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
+    lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
+    scale = ("tone-mapped x/(1+x), " if report.tonemapped else "") + f"data range {report.data_range:.4g}"
+    if kind == "samples" and report.heldout:
+        lines.append(f"PSNR of the decoded file against {report.heldout} held-out samples (left out of the fit): "
+                     f"{report.psnr:.2f} dB ({scale})")
+    elif kind == "samples":
+        lines.append(f"PSNR of the decoded file against the samples it was fitted to (too few to hold some out): "
+                     f"{report.psnr:.2f} dB ({scale})")
+    elif report.heldout:
+        lines.append(f"PSNR of the decoded file against the input at {report.heldout} held-out pixels (never trained "
+                     f"on): {report.psnr:.2f} dB ({scale})")
+    else:
+        lines.append(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB ({scale})")
+    if report.psnr_reference is not None:
+        lines.append(f"PSNR of the decoded file against the reference {reference_path}: {report.psnr_reference:.2f} dB "
+                     f"({scale})")
+    lines.append("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in report.seconds.items()))
+    for line in lines:
+        click.echo(line, err=err)
+
+
+def _fit_callback(bar):
+    """The fit's progress: one tick per step, loss and batch PSNR every 25 steps."""
+    def callback(step, loss_value, psnr):
+        bar.update(1)
+        if step % 25 == 0:
+            bar.set_postfix(loss=f"{loss_value:.3g}", psnr=f"{psnr:.1f} dB", refresh=False)
+
+    return callback
+
+
+def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
+                      quiet):
+    """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
+    from ..codec import encode_fem, encode_frames, encode_image, encode_samples
+
+    total_steps = settings.steps + settings.refine * (settings.refine_steps or max(1, settings.steps // 2))
+    with progress_bar(total_steps, "fit", quiet) as bar:
+        callback = _fit_callback(bar)
+        if kind == "samples":
+            return encode_samples(signal, curves, settings, reference=reference, callback=callback)
+        if kind == "fem":
+            return encode_fem(signal, curves, settings, sampling=fem_sampling, callback=callback)
+        if kind == "frames":
+            return encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
+        return encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback,
+                            curves_info=curves_info)
+
+
+def _gpus() -> int:
+    import torch
+
+    return torch.cuda.device_count()
+
+
+IN_MEMORY_PIXELS = 1 << 24
+"""Image inputs with more pixels than this (4096²) are encoded out of core (``dfc.codec.encode_bands``)."""
+
+
+def _out_of_core(kind: str, paths, epoch_pixels, workers: int) -> bool:
+    """Whether an input is encoded out of core: an image with --epoch-pixels or --workers, under torchrun, or an
+    EXR above ``IN_MEMORY_PIXELS``; ``click.UsageError`` for those options with other inputs."""
+    from ..io.bands import ExrBands
+    from ..io.sniff import file_kind
+    from ..train.distributed import launched
+
+    asked = epoch_pixels is not None or workers > 1 or launched()
+    if kind != "image":
+        if asked:
+            raise click.UsageError(f"--epoch-pixels, --workers and torchrun apply to one image input, not {kind}")
+        return False
+    if file_kind(paths[0]) == "exr":
+        bands = ExrBands(paths[0])  # the header: a damaged or truncated file is refused before any rank starts
+        return asked or bands.width * bands.height > IN_MEMORY_PIXELS
+    return asked
+
+
+@dataclass
+class BandJob:
+    """An out-of-core encode as each rank runs it: the input, its curves, the settings, where rank 0 writes."""
+
+    input_path: str
+    channels: list[str] | None
+    curves: object
+    settings: object
+    fit_curves: bool
+    output: str
+    quiet: bool
+
+
+def run_band_job(job: BandJob):
+    """Run an out-of-core encode here (one process), as a rank of this torchrun run, or on ``job.settings.workers``
+    local ranks (``dfc.train.distributed.launch``, rank 0 writing the file). Returns (blob to write or None,
+    report); (None, None) on ranks other than 0."""
+    from ..train import distributed
+
+    if job.settings.workers > 1:
+        return None, distributed.launch(job.settings.workers, rank_main, job)[0]
+    if distributed.launched():
+        return _as_rank(job)
+    return _encode_bands(job)
+
+
+def rank_main(job: BandJob):
+    """Entry point of each local rank of ``dfc encode --workers N``: rank 0 writes the file and returns the report.
+    A rank ends when the launching process does, however that ends (Linux: the parent-death signal)."""
+    _end_with_parent()
+    blob, report = _as_rank(job)
+    if blob is not None:
+        write_bytes_atomic(job.output, blob)
+    return report
+
+
+def _end_with_parent() -> None:
+    """SIGTERM ends this process as it ends the CLI, and Linux sends it when the parent dies
+    (``prctl(PR_SET_PDEATHSIG)``)."""
+    import ctypes
+    import signal
+    import sys
+
+    from . import _terminate
+
+    signal.signal(signal.SIGTERM, _terminate)  # unwinds, so the atomic writers remove their temporary files
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
+
+
+def _as_rank(job: BandJob):
+    """``_encode_bands`` inside the process group of this run (joined here, left at the end). The progress bar
+    locks with a thread lock: tqdm's default holds a named semaphore, which a killed rank would leave behind (and
+    Python's resource tracker would warn about after the run's one error line)."""
+    import threading
+
+    from tqdm import tqdm
+
+    from ..errors import DfcError
+    from ..train import distributed
+
+    tqdm.set_lock(threading.RLock())
+    job = replace(job, settings=replace(job.settings, device=distributed.init(job.settings.device)))
+    try:
+        return _encode_bands(job)
+    except RuntimeError as e:
+        lost = None if isinstance(e, distributed.RankError) else distributed.lost_rank(e)
+        if lost is None:
+            raise
+        raise lost from None
+    except DfcError as e:  # the cause, recorded before leaving the group makes the others fail
+        distributed.record_cause(e)
+        raise
+    finally:
+        distributed.finish()
+
+
+def _encode_bands(job: BandJob):
+    from ..codec import encode_bands
+    from ..io.bands import open_bands
+    from ..train.distributed import world
+
+    source = open_bands(job.input_path, job.channels)
+    with progress_bar(job.settings.steps, "fit", job.quiet or world()[0] != 0) as bar:
+        return encode_bands(source, job.curves, job.settings, fit_curves=job.fit_curves, callback=_fit_callback(bar))
+
+
+def _read_reference(path: str, domain):
+    """(H, W, C) float32 exact values of a ``--reference`` file over ``domain`` (``dfc.io.samples.read_reference``)."""
+    from ..errors import InputError
+    from ..io.samples import read_reference
+
+    pixels, ref_domain = read_reference(path)
+    if ref_domain is not None and not np.allclose(ref_domain, domain, rtol=1e-9, atol=0):
+        raise InputError(f"{path}: the reference's domain {tuple(ref_domain)} differs from the curves' {tuple(domain)}")
+    return pixels
 
 
 def _read_input(kind: str, paths: tuple[str, ...], times, channels, fields):

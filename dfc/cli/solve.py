@@ -4,11 +4,20 @@ from __future__ import annotations
 
 import click
 
-from .options import check_device, progress_bar
+from .options import (
+    check_device,
+    json_option,
+    progress_bar,
+    quiet_option,
+    read_curves_checked,
+    stdout_taken,
+    threads_option,
+    write_json,
+)
 
 
 @click.command()
-@click.argument("scene_path", metavar="SCENE", type=click.Path(exists=True, dir_okay=False))
+@click.argument("scene_path", metavar="SCENE", type=click.Path(exists=True, dir_okay=False, allow_dash=True))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), help="The .dfield file to write.")
 @click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on the mesh's triangle count.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Optimiser steps  [default: 1000].")
@@ -25,17 +34,19 @@ from .options import check_device, progress_bar
 @click.option("--device", default="cpu", show_default=True, help="torch device for the solve (cpu, cuda, cuda:1, ...).")
 @click.option("--compare", "compare", type=click.IntRange(min=8), default=None, metavar="N",
               help="Also solve by finite differences on a grid N pixels on the long side and print the PSNR.")
-@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+@threads_option
+@json_option
+@quiet_option
 def command(scene_path, output, max_triangles, steps, batch_size, boundary_weight, lr, dim, feature_bits, seed,
-            device, compare, quiet):
+            device, compare, json_path, quiet):
     """Solve the diffusion-curve SCENE (XML, or JSON with side values) into OUTPUT with no data: the field is
     trained on the Dirichlet energy of Laplace's equation plus a boundary term holding the curves' two-sided
-    values, with a zero-flux canvas border (as in dfc wos). OUTPUT is an ordinary .dfield.
+    values, with a zero-flux canvas border (as in dfc wos). OUTPUT is an ordinary .dfield; an existing one is
+    replaced, atomically, once the new file is complete. SCENE - reads standard input.
     """
     import time
     from dataclasses import replace
 
-    from ..geometry.curves import read_curves
     from ..io.atomic import write_bytes_atomic
     from ..physics.solve import SolveSettings, prepare, solve_scene
 
@@ -45,7 +56,7 @@ def command(scene_path, output, max_triangles, steps, batch_size, boundary_weigh
                                ("lr", lr)) if v is not None}
     settings = replace(SolveSettings(), max_triangles=max_triangles, dim=dim, feature_bits=feature_bits, seed=seed,
                        device=check_device(device), **given)
-    curves = read_curves(scene_path)
+    curves = read_curves_checked(scene_path, quiet)
     clock = time.perf_counter()
     problem = prepare(curves, settings)
     seconds = {"mesh_s": time.perf_counter() - clock}
@@ -57,21 +68,28 @@ def command(scene_path, output, max_triangles, steps, batch_size, boundary_weigh
 
         blob, report = solve_scene(curves, settings, problem=problem, callback=callback)
     write_bytes_atomic(output, blob)
-    click.echo(f"wrote {output}: {report.total_bytes} bytes")
+    err = stdout_taken(json_path)
+    click.echo(f"wrote {output}: {report.total_bytes} bytes", err=err)
     for name, size in report.chunk_bytes.items():
-        click.echo(f"  {name}  {size:>10} bytes")
-    click.echo(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
-    click.echo(f"last step: energy {report.energy:.5g}, boundary {report.boundary:.4g}")
-    if compare is not None:
-        click.echo("PSNR of the decoded file against the finite-difference reference on a "
-                   + _compare(blob, problem, compare))
+        click.echo(f"  {name}  {size:>10} bytes", err=err)
+    click.echo(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features",
+               err=err)
+    click.echo(f"last step: energy {report.energy:.5g}, boundary {report.boundary:.4g}", err=err)
+    compared = _compare(blob, problem, compare) if compare is not None else None
+    if compared is not None:
+        click.echo(f"PSNR of the decoded file against the finite-difference reference on a {compared[0]}", err=err)
     seconds.update(report.seconds)
-    click.echo("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in seconds.items()))
+    click.echo("time: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in seconds.items()), err=err)
+    if json_path:
+        from dataclasses import asdict
+
+        write_json(json_path, {"output": output, **asdict(report), "seconds": seconds,
+                               "psnr_reference": None if compared is None else compared[1]})
 
 
-def _compare(blob: bytes, problem, size: int) -> str:
-    """'W x H grid: P dB (data range R)' for the decoded file against ``dfc.physics.reference`` at that grid's pixel
-    centres."""
+def _compare(blob: bytes, problem, size: int) -> tuple[str, float]:
+    """('W x H grid: P dB (data range R)', P) for the decoded file against ``dfc.physics.reference`` at that grid's
+    pixel centres."""
     from ..codec import loads
     from ..metrics import psnr
     from ..physics.reference import solve_reference
@@ -81,4 +99,4 @@ def _compare(blob: bytes, problem, size: int) -> str:
     reference = solve_reference(problem.scene, max(2, width), max(2, height)).values
     rendered = loads(blob).render(width, height)
     value = psnr(reference, rendered, data_range=problem.data_range)
-    return f"{width} x {height} grid: {value:.2f} dB (data range {problem.data_range:.4g})"
+    return f"{width} x {height} grid: {value:.2f} dB (data range {problem.data_range:.4g})", value

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 import click
+
+from .options import quiet_option, stdin_file, write_json
 
 
 def file_stats(path) -> dict:
@@ -38,15 +38,21 @@ def file_stats(path) -> dict:
 
 
 @click.command()
-@click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False))
-@click.option("--json", "as_json", is_flag=True, help="Print the statistics as one JSON object.")
-def command(input_path, as_json):
-    """Print the mesh, parameter and byte statistics of IN: triangles, vertices, discontinuous vertices, curved
-    triangles, feature and MLP parameters, bytes per chunk, bits per pixel of the encoded input, versions."""
-    s = file_stats(input_path)
-    if as_json:
-        click.echo(json.dumps(s, indent=2))
-        return
+@click.argument("input_path", metavar="IN", type=click.Path(exists=True, dir_okay=False, allow_dash=True))
+@click.option("--json", "json_path", is_flag=False, flag_value="-", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Write the statistics as one JSON object to this file, or with no file (or -) to standard output "
+                   "instead of the table.")
+@quiet_option
+def command(input_path, json_path, quiet):
+    """Print the mesh, parameter and byte statistics of IN (- reads standard input): triangles, vertices,
+    discontinuous vertices, curved triangles, feature and MLP parameters, bytes per chunk, bits per pixel of the
+    encoded input, versions."""
+    with stdin_file(input_path, "stdin.dfield") as path:
+        s = file_stats(path)
+    if json_path:
+        write_json(json_path, s)
+        if json_path == "-":
+            return
     m, p = s["mesh"], s["parameters"]
     rows = [
         ("file", f"{s['file_bytes']} bytes, container {s['container_version']}, content {s['content_version']}"),
@@ -65,6 +71,10 @@ def command(input_path, as_json):
         ("bits per pixel", "n/a" if s["bits_per_pixel"] is None else f"{s['bits_per_pixel']:.3f}"),
     ]
     rows += [(f"chunk {name}", f"{size} bytes") for name, size in s["chunk_bytes"].items()]
+    found = s["encoder"].get("curves")
+    if found:
+        rows.append(("curves", f"{found['curves']} curves ({found['pieces']} pieces) {found['extracted']}, settings "
+                               + ", ".join(f"{k}={v}" for k, v in found["settings"].items())))
     width = max(len(k) for k, _ in rows)
     for key, value in rows:
         click.echo(f"{key:<{width}}  {value}")

@@ -31,6 +31,8 @@ LOCATE_CHUNK = 1 << 16
 """Queries located per block."""
 MISS_CHUNK = 1 << 15
 """Queries whose first candidate misses are resolved this many at a time (bounds the (M, K, 6) gather)."""
+BUILD_CHUNK = 1 << 14
+"""Triangles whose grid cells are listed at a time while the grid is built (bounds its temporary memory)."""
 MISS_WINDOW = 3
 """Later candidates tested in the first window; each further window is twice as wide."""
 
@@ -102,7 +104,6 @@ class PointLocator(nn.Module):
         nx, ny = max(1, int(np.ceil(width / h))), max(1, int(np.ceil(height / h)))
         v0, v1, v2 = verts[tris[:, 0]], verts[tris[:, 1]], verts[tris[:, 2]]
         origin = np.array([x0, y0])
-        tri, cell = _cell_pairs(v0, v1, v2, origin, h, (ny, nx))
         e1, e2 = v1 - v0, v2 - v0
         det = cross(e1, e2)
         if np.any(det <= 0):
@@ -113,11 +114,18 @@ class PointLocator(nn.Module):
         inv = np.stack([e2[:, 1], -e2[:, 0], -e1[:, 1], e1[:, 0]], axis=1) / det[:, None]
         e12 = v2 - v1
         grad0 = np.stack([-e12[:, 1], e12[:, 0]], axis=1) / det[:, None]
-        centre = origin + (np.stack([cell % nx, cell // nx], axis=1) + 0.5) * h
-        d = centre - v0[tri]
-        l1 = inv[tri, 0] * d[:, 0] + inv[tri, 1] * d[:, 1]
-        l2 = inv[tri, 2] * d[:, 0] + inv[tri, 3] * d[:, 1]
-        depth = np.minimum(np.minimum(l1, l2), 1.0 - l1 - l2)
+        parts = []
+        for t0 in range(0, len(tris), BUILD_CHUNK):  # blocks of triangles bound the (triangle, cell) temporaries
+            t1 = min(len(tris), t0 + BUILD_CHUNK)
+            tri, cell = _cell_pairs(v0[t0:t1], v1[t0:t1], v2[t0:t1], origin, h, (ny, nx))
+            tri += t0
+            centre = origin + (np.stack([cell % nx, cell // nx], axis=1) + 0.5) * h
+            d = centre - v0[tri]
+            l1 = inv[tri, 0] * d[:, 0] + inv[tri, 1] * d[:, 1]
+            l2 = inv[tri, 2] * d[:, 0] + inv[tri, 3] * d[:, 1]
+            parts.append((tri.astype(np.int32), cell, np.minimum(np.minimum(l1, l2), 1.0 - l1 - l2)))
+        tri, cell, depth = (np.concatenate(column) for column in zip(*parts))
+        del parts
         order = np.lexsort((tri, -depth, cell))
         tri, cell = tri[order], cell[order]
         count = np.bincount(cell, minlength=nx * ny)

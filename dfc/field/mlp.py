@@ -20,7 +20,16 @@ class MLP(nn.Module):
     ``layers`` is the number of hidden layers (the paper's "two-layer perceptron with 64 neurons"
     is ``hidden=64, layers=2``: three Linear maps). The output layer is linear (no activation).
     Input (N, in_dim) float32 → output (N, out_dim) float32.
+
+    Mixed precision (``mixed_precision``): on CUDA the hidden layers run in bfloat16 under ``torch.autocast`` and the
+    output layer in float32. bfloat16 keeps float32's range, so gradients need no loss scaling (and no per-step
+    overflow check, which would sync with the host). CPU tensors always run in float32. Measured with the CPU's
+    bfloat16 autocast (the same rounding), 1,000 steps of ``dfc encode``: the shipped LDR sample 41.13 dB against
+    41.11 dB in float32 (float16: 41.10 dB), but the ``hdr`` scene (log transform) 41.10 / 41.17 dB against
+    41.25 / 41.34 dB (two seeds) — so ``FieldModel`` turns it on for the identity transform only.
     """
+
+    mixed_precision = False
 
     def __init__(self, in_dim: int, out_dim: int, hidden: int = 64, layers: int = 2, activation: str = "relu"):
         super().__init__()
@@ -48,6 +57,10 @@ class MLP(nn.Module):
     def forward(self, x: Tensor) -> Tensor:
         if x.shape[-1] != self.in_dim:
             raise ValueError(f"expected input (..., {self.in_dim}), got {tuple(x.shape)}")
+        if self.mixed_precision and x.is_cuda:
+            with torch.autocast("cuda", dtype=torch.bfloat16):
+                hidden = self.net[:-1](x)
+            return self.net[-1](hidden.float())
         return self.net(x)
 
 

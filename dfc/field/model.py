@@ -82,6 +82,7 @@ class FieldModel(nn.Module):
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
             self.decoder = MLP(in_dim, len(channels), hidden=hidden, layers=layers, activation=activation)
+        self.decoder.mixed_precision = transform == "identity"  # bfloat16 on CUDA costs HDR fits PSNR (MLP notes)
         self.to(field.bank.device)
         self._quantization: dict | None = None
 

@@ -53,10 +53,18 @@ def dequantize_features(q: np.ndarray, scale: np.ndarray, offset: np.ndarray) ->
 
 
 def fake_quantize(F: torch.Tensor, bits: int) -> torch.Tensor:
-    """Quantise-dequantise ``F`` (..., K) exactly as the file will, with a straight-through gradient."""
-    scale, offset = feature_ranges(F.detach().cpu().numpy(), bits)
-    scale_t = torch.as_tensor(scale, device=F.device)
-    offset_t = torch.as_tensor(offset, device=F.device)
+    """Quantise-dequantise ``F`` (..., K) exactly as the file will, with a straight-through gradient. Computed on
+    ``F``'s device (no host round trip): the ranges are ``feature_ranges``' float32 arithmetic in torch."""
+    if not 1 <= bits <= MAX_FEATURE_BITS:
+        raise ValueError(f"feature bits must be in 1..{MAX_FEATURE_BITS}, got {bits}")
+    flat = F.detach().float().reshape(-1, F.shape[-1])
+    if len(flat):
+        lo, hi = flat.amin(dim=0), flat.amax(dim=0)
+    else:
+        lo = hi = flat.new_zeros(F.shape[-1])
+    scale_t = (hi - lo) / torch.tensor(2**bits - 1, dtype=torch.float32, device=F.device)
+    scale_t = torch.where(scale_t > 0, scale_t, torch.ones_like(scale_t))  # constant channel: any positive scale
+    offset_t = lo
     q = torch.clamp(torch.round((F.detach().float() - offset_t) / scale_t), 0, 2**bits - 1)
     Fq = (offset_t + q * scale_t).to(F.dtype)
     return F + (Fq - F).detach()

@@ -419,15 +419,21 @@ def refine_intersections(cp_a, cp_b, s, t, iterations: int = 40) -> tuple[np.nda
     cp_a, cp_b = _as_cp(cp_a), _as_cp(cp_b)
     s = np.asarray(s, dtype=np.float64).copy()
     t = np.asarray(t, dtype=np.float64).copy()
+    live = np.arange(len(s))  # pairs not yet at a fixed point of the iteration (the others would not move again)
     for _ in range(iterations):
-        f = evaluate(cp_a, s) - evaluate(cp_b, t)
-        da, db = derivative(cp_a, s), derivative(cp_b, t)
+        if not len(live):
+            break
+        a, b, sl, tl = cp_a[live], cp_b[live], s[live], t[live]
+        f = evaluate(a, sl) - evaluate(b, tl)
+        da, db = derivative(a, sl), derivative(b, tl)
         det = cross(db, da)  # det of [da, -db]
         with np.errstate(divide="ignore", invalid="ignore"):
             ds = cross(f, db) / det  # Cramer on da ds - db dt = -f
             dt = cross(f, da) / det
         ok = np.isfinite(ds) & np.isfinite(dt)
-        s = np.clip(np.where(ok, s + ds, s), 0.0, 1.0)
-        t = np.clip(np.where(ok, t + dt, t), 0.0, 1.0)
+        s_new = np.clip(np.where(ok, sl + ds, sl), 0.0, 1.0)
+        t_new = np.clip(np.where(ok, tl + dt, tl), 0.0, 1.0)
+        s[live], t[live] = s_new, t_new
+        live = live[(s_new != sl) | (t_new != tl)]
     gap = evaluate(cp_a, s) - evaluate(cp_b, t)
     return s, t, np.hypot(gap[:, 0], gap[:, 1])

@@ -139,6 +139,19 @@ def split_pieces(curves: Curves, max_length: float, *, lines: bool = False, curv
                   curves.source)
 
 
+def curves_outside(curves: Curves) -> list[int]:
+    """Indices of the input curves with every piece entirely outside the domain (nothing of them reaches the mesh;
+    clean-up clips pieces to the domain). A piece lies inside the bounding box of its control points, so one whose
+    box does not meet the closed domain rectangle is outside."""
+    x0, y0, x1, y1 = curves.domain
+    lo, hi = curves.control_points.min(axis=1), curves.control_points.max(axis=1)  # (P, 2) each
+    out = (hi[:, 0] < x0) | (lo[:, 0] > x1) | (hi[:, 1] < y0) | (lo[:, 1] > y1)
+    n = max(curves.n_curves, int(curves.curve.max()) + 1 if len(curves) else 0)
+    inside = np.bincount(curves.curve[~out], minlength=n)
+    present = np.bincount(curves.curve, minlength=n)
+    return [int(c) for c in np.flatnonzero((present > 0) & (inside == 0))]
+
+
 def fit_curves_to_domain(curves: Curves, domain: tuple[float, float, float, float]) -> Curves:
     """``curves`` scaled and translated so that their domain maps onto ``domain`` (independently in x and y)."""
     sx0, sy0, sx1, sy1 = curves.domain

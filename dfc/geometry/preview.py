@@ -1,6 +1,7 @@
-"""Pictures of a mesh for eyes: thin grey edges, discontinuous edges in red, curved pieces in blue over
-tinted curved triangles. PNG (Pillow) or SVG (text), chosen by the file's suffix, written atomically.
-Image rows run along +y (y down), as in ``spec/conventions.md``."""
+"""Pictures for eyes. ``draw_mesh``: thin grey edges, discontinuous edges in red, curved pieces in blue over
+tinted curved triangles, PNG (Pillow) or SVG (text) by the file's suffix. ``draw_curves``: curves over the
+image they were found in, PNG. Written atomically. Image rows run along +y (y down), as in
+``spec/conventions.md``."""
 
 from __future__ import annotations
 
@@ -11,9 +12,10 @@ from PIL import Image, ImageDraw
 
 from ..io.atomic import atomic_path, write_bytes_atomic
 from . import bezier
+from .curves import Curves
 from .mesh import Mesh
 
-__all__ = ["draw_mesh", "FORMATS"]
+__all__ = ["draw_mesh", "draw_curves", "FORMATS"]
 
 FORMATS = (".png", ".svg")
 _GREY, _DISC, _CURVE, _TINT = (170, 170, 170), (215, 40, 40), (30, 90, 220), (200, 220, 255)
@@ -52,6 +54,49 @@ def draw_mesh(mesh: Mesh, path: str | Path, *, size: int = 1024) -> None:
     if len(mesh.curved_triangles):
         for line in px(bezier.flatten(mesh.curve_control_points, _CURVE_SAMPLES)):
             draw.line([tuple(p) for p in line], fill=_CURVE, width=2)
+    with atomic_path(path) as tmp:
+        image.save(tmp, format="PNG")
+
+
+_PALETTE = [(255, 60, 60), (40, 200, 255), (255, 210, 0), (90, 230, 90), (255, 120, 220), (255, 150, 40)]
+
+
+def draw_curves(curves: Curves, path: str | Path, *, background: np.ndarray | None = None, hdr: bool = False,
+                size: int = 1024) -> None:
+    """Draw ``curves`` over ``background`` to a PNG, the domain's long side ``size`` pixels wide.
+
+    background : (H, W, C) linear values over the whole domain (grey, grey + alpha, RGB or RGBA; other channel
+        counts show their first channel), shown as sRGB (tone-mapped when ``hdr``), nearest-neighbour
+        enlarged so its pixels stay visible; default a white page
+    Each input curve gets a colour of its own; piece ends are dots.
+    """
+    from ..io.image import linear_to_srgb, tonemap
+
+    if Path(path).suffix.lower() != ".png":
+        raise ValueError(f"preview: curves are drawn to .png, got {Path(path).suffix!r}")
+    x0, y0, x1, y1 = curves.domain
+    scale = size / max(x1 - x0, y1 - y0)
+    width, height = max(1, round((x1 - x0) * scale)), max(1, round((y1 - y0) * scale))
+    if background is None:
+        image = Image.new("RGB", (width, height), "white")
+    else:
+        bg = np.asarray(background, dtype=np.float32)
+        bg = bg[..., None] if bg.ndim == 2 else bg
+        colour = bg[..., :3] if bg.shape[2] >= 3 else np.repeat(bg[..., :1], 3, axis=2)
+        shown = np.rint(linear_to_srgb(tonemap(colour) if hdr else colour) * 255).astype(np.uint8)
+        image = Image.fromarray(shown, "RGB").resize((width, height), Image.NEAREST)
+    draw = ImageDraw.Draw(image)
+    line_width = max(1, round(size / 512))
+    for c in range(max(curves.n_curves, int(curves.curve.max()) + 1 if len(curves) else 0)):
+        cp = curves.control_points[curves.curve == c]
+        if not len(cp):
+            continue
+        colour = _PALETTE[c % len(_PALETTE)]
+        for line in (bezier.flatten(cp, _CURVE_SAMPLES) - np.array([x0, y0])) * scale:
+            draw.line([tuple(p) for p in line], fill=colour, width=line_width)
+        for p in (np.concatenate([cp[:, 0], cp[-1:, 3]]) - np.array([x0, y0])) * scale:
+            r = line_width + 1
+            draw.ellipse([p[0] - r, p[1] - r, p[0] + r, p[1] + r], fill=colour)
     with atomic_path(path) as tmp:
         image.save(tmp, format="PNG")
 

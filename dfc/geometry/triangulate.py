@@ -314,12 +314,18 @@ def _separate(cp, degree, piece, lines, domain, eps):
 
     cp : (C, 4, 2) float64; degree, piece : (C,); lines : (L, 2, 2) float64 line pieces
     returns cp, degree, piece of the halved pieces and their apexes (C', 2) float64 (clamped into the domain)
+
+    Each round checks only the *active* pieces: the halves of the last round's bad pieces and the pieces that were
+    in a conflict without being halved. A piece in no conflict stays out of conflicts (halves lie inside their
+    parent's tangent triangle), so rounds after the first cost what the few halved pieces cost; when the active
+    pieces are free of conflicts, a last check of every piece confirms it (and restarts the loop if it does not).
     """
     x0, y0, x1, y1 = domain
     lo_d, hi_d = np.array([x0, y0]), np.array([x1, y1])
     corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
     min_chord = tol.snap_rel * np.hypot(x1 - x0, y1 - y0)
     seg_lo, seg_hi = lines.min(axis=1), lines.max(axis=1)
+    active = np.ones(len(cp), dtype=bool)
     for _ in range(_MAX_ROUNDS):
         a, b = cp[:, 0], cp[:, 3]
         apex = bezier.tangent_apex(cp)
@@ -328,29 +334,39 @@ def _separate(cp, degree, piece, lines, domain, eps):
         bad |= ((apex < lo_d - eps) | (apex > hi_d + eps)).any(axis=1)
         tri = _ccw_triangles(a, apex, b)
         lo, hi = tri.min(axis=1), tri.max(axis=1)
+        check = np.flatnonzero(active)
+        conflict = np.zeros(len(cp), dtype=bool)
 
-        oi, oj = _box_pairs(lo, hi, lo, hi, same=True)
+        oi, oj = _box_pairs(lo[check], hi[check], lo[check], hi[check], same=True)
+        oi, oj = check[oi], check[oj]
         hit = ~(_separated(tri[oi], tri[oj], eps) | _separated(tri[oj], tri[oi], eps))
         oi, oj = oi[hit], oj[hit]
+        conflict[oi] = conflict[oj] = True
         li, lj = np.hypot(*(b[oi] - a[oi]).T), np.hypot(*(b[oj] - a[oj]).T)
         bad[oi[li >= 0.5 * lj]] = True
         bad[oj[lj >= 0.5 * li]] = True
 
-        i, k = _box_pairs(lo, hi, seg_lo, seg_hi)
+        i, k = _box_pairs(lo[check], hi[check], seg_lo, seg_hi)
+        i = check[i]
         seg = lines[k]
         d = _signed(seg[:, 0], seg[:, 1], tri[i])
         apart = _separated(tri[i], seg, eps) | (d.max(axis=1) <= eps) | (d.min(axis=1) >= -eps)
         bad[i[~apart]] = True
 
         points = np.unique(np.concatenate([corners, lines.reshape(-1, 2), a, b]), axis=0)
-        i, k = _box_pairs(lo, hi, points, points)
+        i, k = _box_pairs(lo[check], hi[check], points, points)
+        i = check[i]
         p = points[k]
         own = (p == a[i]).all(axis=1) | (p == b[i]).all(axis=1)
         inside = (_signed_edges(tri[i], p) >= -eps).all(axis=1) & ~own
         bad[i[inside]] = True
 
+        bad &= active
         if not bad.any():
-            return cp, degree, piece, np.clip(apex, lo_d, hi_d)
+            if active.all():
+                return cp, degree, piece, np.clip(apex, lo_d, hi_d)
+            active[:] = True  # confirm with every piece
+            continue
         short = bad & (np.hypot(*(b - a).T) < min_chord)
         if short.any():
             c = int(np.flatnonzero(short)[0])
@@ -359,6 +375,7 @@ def _separate(cp, degree, piece, lines, domain, eps):
         cp = np.concatenate([cp[~bad], left, right])
         degree = np.concatenate([degree[~bad], degree[bad], degree[bad]])
         piece = np.concatenate([piece[~bad], piece[bad], piece[bad]])
+        active = np.concatenate([conflict[~bad], np.ones(2 * int(bad.sum()), dtype=bool)])
     raise MeshError(f"triangulate: tangent triangles still conflict after {_MAX_ROUNDS} rounds of halving")
 
 

@@ -430,7 +430,8 @@ def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> by
 
 # ----------------------------------------------------------------------------------------------- public API
 def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8, compression_level: int = 19,
-                  feature_coding: str = "predicted", weight_bits: int | None = None) -> tuple[bytes, dict[str, int]]:
+                  feature_coding: str = "predicted", weight_bits: int | None = None,
+                  mesh_validated: bool = False) -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
 
     ``contents.mesh`` should be ``roundtrip_mesh(mesh, bits)``, the view the features were fitted on: it is
@@ -439,7 +440,8 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8, compressio
     zstd level. ``feature_coding``: "predicted" writes ``FEAC`` (``dfc.io.featcodec``), "plain" the 1.0 ``FEAT``.
     ``weight_bits``: None writes every MLP tensor as float16 (``MLPW``), 2..16 the weight matrices as integers of
     that many bits per row (``MLPQ``; ``dfc.field.quantize.quantize_weights``). Raises ``FormatError`` when the
-    contents would make an invalid file and ``MeshError`` when the mesh is invalid.
+    contents would make an invalid file and ``MeshError`` when the mesh is invalid. ``mesh_validated``: the mesh
+    came from ``roundtrip_mesh`` (validated there), so it is not validated again (``encode_roundtripped``).
     """
     F = np.asarray(contents.features)
     if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
@@ -459,7 +461,7 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8, compressio
         text = json.dumps(header, allow_nan=False, ensure_ascii=False).encode("utf-8")
     except (TypeError, ValueError) as exc:
         raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
-    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level)
+    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level, validated=mesh_validated)
     if feature_coding == "predicted":
         from .featcodec import encode_feac
 
@@ -486,14 +488,15 @@ def write_dfield(path: str | os.PathLike, contents: DfieldContents, **options) -
     return sizes
 
 
-def decode_dfield(buf: bytes) -> DfieldContents:
-    """Parse a whole ``.dfield`` file held in memory; raise ``FormatError`` on any violation of the spec."""
+def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
+    """Parse a whole ``.dfield`` file held in memory; raise ``FormatError`` on any violation of the spec.
+    ``validate_mesh=False`` skips ``Mesh.validate`` (only for bytes just written from a validated mesh)."""
     chunks, _ = _split_chunks(buf)
     feat_type, feat = _one(chunks, CRITICAL_ORDER[3])
     info = _feat_info(feat, feat_type.decode())
     header = _parse_header(bytes(chunks[b"HEAD"]))
     _check_header(header, info["slices"])
-    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"])
+    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"], full_validate=validate_mesh)
     layout = _layout(mesh)
     if layout.n_features != info["rows"]:
         raise FormatError(f"{feat_type.decode()}: {info['rows']} feature rows, the mesh's layout has "

@@ -89,9 +89,10 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldMode
     return model
 
 
-def loads(blob: bytes, *, device: str = "cpu") -> FieldModel:
-    """``FieldModel`` from the bytes of a ``.dfield`` file (fully checked; ``FormatError`` if damaged)."""
-    return from_contents(decode_dfield(blob), device=device)
+def loads(blob: bytes, *, device: str = "cpu", validate_mesh: bool = True) -> FieldModel:
+    """``FieldModel`` from the bytes of a ``.dfield`` file (fully checked; ``FormatError`` if damaged).
+    ``validate_mesh=False``: bytes an encoder just wrote from a validated mesh (``decode_dfield``)."""
+    return from_contents(decode_dfield(blob, validate_mesh=validate_mesh), device=device)
 
 
 def load(path: str | Path, *, device: str = "cpu") -> FieldModel:

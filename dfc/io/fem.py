@@ -18,6 +18,9 @@ from ..errors import InputError
 
 __all__ = ["FemSolution", "from_meshio", "read_fem"]
 
+MESHIO_FORMATS = ("vtk", "vtu", "xdmf", "gmsh")
+"""Kinds of ``dfc.io.sniff`` that name a meshio reader (``file_format``)."""
+
 @dataclass(frozen=True)
 class FemSolution:
     """A P1 solution on a triangle mesh.
@@ -43,7 +46,8 @@ class FemSolution:
 
 
 def read_fem(path: str | Path, fields: list[str] | None = None) -> FemSolution:
-    """Read a triangle mesh with point data from any format ``meshio`` reads (.vtu, .msh, .xdmf, …).
+    """Read a triangle mesh with point data from any format ``meshio`` reads (.vtu, .msh, .xdmf, …): VTK, VTU,
+    XDMF and Gmsh files are recognised by content (``dfc.io.sniff``), others by extension.
 
     fields : point-data arrays to keep (a complex array's name selects both its channels; default: all).
     Raises ``InputError`` (message starts with the path) for unreadable files and everything ``from_meshio`` refuses.
@@ -53,10 +57,13 @@ def read_fem(path: str | Path, fields: list[str] | None = None) -> FemSolution:
 
     import meshio
 
+    from .sniff import sniff
+
+    kind = sniff(path)  # by content when it says (a .vtu named .dat), else meshio goes by the extension
     said = io.StringIO()
     try:
         with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
-            mesh = meshio.read(str(path))
+            mesh = meshio.read(str(path), file_format=kind if kind in MESHIO_FORMATS else None)
     # meshio raises many types (ReadError, KeyError, ValueError, …) for bad files, and for some formats prints
     # a message and calls sys.exit
     except (Exception, SystemExit) as e:

@@ -20,8 +20,11 @@ and data outside the display window is dropped. Multi-part files: the first part
 Damaged EXR files. Measured with the OpenEXR 3.x bindings on the 167 files of the OpenEXR
 project's ``damaged/`` regression set: every one raises a Python exception (RuntimeError,
 ValueError or UnicodeDecodeError) within milliseconds and small memory; none crashes or hangs, so
-files are read in-process. The header is read first (``header_only``) so that absurd sizes,
-deep data and subsampled channels are refused before any pixel allocation.
+files are read in-process. 17 of them make the library print its own messages first (2 to 302 lines on the
+process's standard error from C++, and a "Warning: …" line on Python's standard output from the bindings): reading
+runs with all of these silenced (``library_output_silenced``), so a damaged file gives only dfc's one error line.
+The header is read first (``header_only``) so that absurd sizes, deep data and subsampled channels are refused
+before any pixel allocation.
 
 Streaming writers. ``ExrBlockWriter`` and ``PngBlockWriter`` take row blocks in order and keep
 only one block in memory, for outputs too large to hold (16384² RGB float32 is 3 GiB). The EXR
@@ -34,7 +37,10 @@ block (zlib stream, filter type 1 "Sub") and IEND. Both read back with OpenEXR /
 from __future__ import annotations
 
 import contextlib
+import io
+import os
 import struct
+import sys
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +56,8 @@ __all__ = [
     "ExrBlockWriter",
     "Image",
     "PngBlockWriter",
+    "exr_header_bytes",
+    "exr_zip_block",
     "linear_to_srgb",
     "read_image",
     "srgb_to_linear",
@@ -121,7 +129,7 @@ def display8(pixels: np.ndarray, hdr: bool) -> np.ndarray:
 
 # -- reading --------------------------------------------------------------------------------------
 def read_image(path, channels: list[str] | None = None) -> Image:
-    """Read an EXR, PNG or JPEG file (by extension) into linear float32.
+    """Read an EXR, PNG or JPEG file (told by its content, else its extension: ``dfc.io.sniff``) into linear float32.
 
     Parameters
     ----------
@@ -132,19 +140,20 @@ def read_image(path, channels: list[str] | None = None) -> Image:
     Raises
     ------
     InputError
-        Missing, unreadable or damaged file; unsupported extension, data type or layout; width or
+        Missing, unreadable or damaged file; unsupported format, data type or layout; width or
         height above ``MAX_IMAGE_SIDE`` or area above ``MAX_IMAGE_PIXELS``; a requested channel
         absent; NaN or infinite pixels (the message gives their count and the first location).
     """
+    from .sniff import IMAGE_KINDS, file_kind
+
     path = Path(path)
-    ext = path.suffix.lower()
-    if ext not in EXR_EXTENSIONS + PIL_EXTENSIONS:
-        raise InputError(
-            f"{path}: unsupported image extension {ext!r}; expected one of {', '.join(EXR_EXTENSIONS + PIL_EXTENSIONS)}"
-        )
     if not path.is_file():
         raise InputError(f"{path}: no such image file")
-    planes, names, hdr = _read_exr(path) if ext in EXR_EXTENSIONS else _read_pil(path)
+    kind = file_kind(path)
+    if kind not in IMAGE_KINDS:
+        raise InputError(f"{path}: unsupported image: the content is not EXR, PNG or JPEG, nor is the extension "
+                         f"{path.suffix.lower()!r} one of {', '.join(EXR_EXTENSIONS + PIL_EXTENSIONS)}")
+    planes, names, hdr = _read_exr(path) if kind == "exr" else _read_pil(path)
     if channels is None:
         want = ["R", "G", "B"] + (["A"] if "A" in names else []) if {"R", "G", "B"} <= set(names) else names
     else:
@@ -170,27 +179,71 @@ def _check_size(path: Path, width: int, height: int) -> None:
         )
 
 
-def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
+@contextlib.contextmanager
+def library_output_silenced():
+    """Silence the block's output on standard output and error, at both levels: the OpenEXR library prints its own
+    messages about damaged files from C/C++ (to file descriptors 1 and 2, pointed at the null device here) and from
+    its Python bindings (to ``sys.stdout``, swapped for a discarded buffer), before the bindings raise; dfc reports
+    the error in one line of its own."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in (1, 2)]
+    null = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fd in (1, 2):
+            os.dup2(null, fd)
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            yield
+    finally:
+        _flush_c_streams()  # what the library buffered goes to the null device, not to the restored streams
+        for fd, copy in zip((1, 2), saved):
+            os.dup2(copy, fd)
+            os.close(copy)
+        os.close(null)
+
+
+def _flush_c_streams() -> None:
+    """``fflush(NULL)``: flush the C library's output buffers (C++ streams synchronised with stdio write to them)."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError, TypeError):
+        ctypes.CDLL(None).fflush(None)
+
+
+def read_exr_header(path) -> dict:
+    """The header of an OpenEXR file (``OpenEXR.File(header_only=True)``), checked as far as it goes: readable, flat
+    (scanline or tiled) storage. Raises ``InputError``. Other readers of a file (``dfc.io.bands``) ask this first:
+    older entry points of the bindings crash on some damaged headers that this one refuses."""
     import OpenEXR
 
     try:
-        with OpenEXR.File(str(path), header_only=True) as f:
-            header = f.header()
-            storage = header.get("type", OpenEXR.scanlineimage)
-            (dx0, dy0), (dx1, dy1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
-            (wx0, wy0), (wx1, wy1) = (np.asarray(v, dtype=np.int64) for v in header["displayWindow"])
-            sampling = [(c.name, c.xSampling, c.ySampling) for c in header["channels"]]
+        with library_output_silenced(), OpenEXR.File(str(path), header_only=True) as f:
+            header = dict(f.header())
     except Exception as e:  # noqa: BLE001 — the bindings raise RuntimeError, ValueError, UnicodeDecodeError, ...
         raise InputError(f"{path}: not a readable OpenEXR file ({type(e).__name__}: {e})") from None
+    missing = [name for name in ("dataWindow", "displayWindow", "channels") if name not in header]
+    if missing:
+        raise InputError(f"{path}: damaged OpenEXR header (no {', '.join(missing)})")
+    storage = header.get("type", OpenEXR.scanlineimage)
     if storage not in (OpenEXR.scanlineimage, OpenEXR.tiledimage):
         raise InputError(f"{path}: unsupported EXR storage {storage} (deep images are not images of values)")
+    return header
+
+
+def _read_exr(path: Path) -> tuple[list[np.ndarray], list[str], bool]:
+    import OpenEXR
+
+    header = read_exr_header(path)
+    (dx0, dy0), (dx1, dy1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
+    (wx0, wy0), (wx1, wy1) = (np.asarray(v, dtype=np.int64) for v in header["displayWindow"])
+    sampling = [(c.name, c.xSampling, c.ySampling) for c in header["channels"]]
     _check_size(path, int(dx1 - dx0 + 1), int(dy1 - dy0 + 1))
     _check_size(path, int(wx1 - wx0 + 1), int(wy1 - wy0 + 1))
     sub = [name for name, sx, sy in sampling if (sx, sy) != (1, 1)]
     if sub:
         raise InputError(f"{path}: subsampled channels {sub} are not supported")
     try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
+        with library_output_silenced(), OpenEXR.File(str(path), separate_channels=True) as f:
             data = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
     except Exception as e:  # noqa: BLE001 — as above: any failure of the bindings is a damaged file
         raise InputError(f"{path}: damaged OpenEXR file ({type(e).__name__}: {e})") from None
@@ -359,6 +412,44 @@ class _BlockWriter:
         self.next_row += len(block)
 
 
+def exr_zip_block(rows: np.ndarray, order: list[int], dtype: np.dtype) -> bytes:
+    """The data of one ZIP-compressed OpenEXR chunk (a scanline block or a tile): rows (h, w, C) float values,
+    ``order`` the file's channel order (indices into C, channels sorted by name), ``dtype`` ``<f2`` or ``<f4``.
+    Stored uncompressed when compression does not help, as the format allows."""
+    # per scanline, per channel in file order, ``w`` little-endian values
+    raw = np.ascontiguousarray(rows[:, :, order].transpose(0, 2, 1), dtype=dtype).view(np.uint8).ravel()
+    t = np.concatenate([raw[0::2], raw[1::2]])  # OpenEXR's ZIP byte reordering ...
+    t[1:] = (t[1:].astype(np.int16) - t[:-1] + 128).astype(np.uint8)  # ... and delta predictor
+    packed = zlib.compress(t.tobytes(), 4)
+    return packed if len(packed) < len(raw) else raw.tobytes()
+
+
+def exr_header_bytes(width: int, height: int, channels: list[str], order: list[int], half: bool,
+                     extra: list[tuple[str, str, bytes]] = (), flags: int = 0) -> bytes:
+    """Magic, version and header attributes of a single-part OpenEXR file with ZIP compression, ``channels`` in file
+    ``order``, data and display window ``[0, width) × [0, height)``, ``extra`` attributes (name, type, value) and
+    version ``flags`` (e.g. 0x200 for tiles); the long-names flag is added when a name needs it."""
+    long_names = any(len(c.encode()) > 31 for c in channels)
+    chlist = b"".join(
+        channels[k].encode() + b"\0" + struct.pack("<iB3xii", 1 if half else 2, 0, 1, 1) for k in order
+    ) + b"\0"
+    box = struct.pack("<iiii", 0, 0, width - 1, height - 1)
+    attrs = [
+        ("channels", "chlist", chlist),
+        ("compression", "compression", bytes([3])),  # ZIP_COMPRESSION
+        ("dataWindow", "box2i", box),
+        ("displayWindow", "box2i", box),
+        ("lineOrder", "lineOrder", b"\0"),
+        ("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
+        ("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
+        ("screenWindowWidth", "float", struct.pack("<f", 1.0)),
+        *extra,
+    ]
+    header = struct.pack("<ii", 20000630, 2 | flags | (0x400 if long_names else 0))
+    header += b"".join(n.encode() + b"\0" + t.encode() + b"\0" + struct.pack("<i", len(v)) + v for n, t, v in attrs)
+    return header + b"\0"
+
+
 class ExrBlockWriter(_BlockWriter):
     """Streamed scanline EXR (ZIP, 16 rows per chunk, INCREASING_Y), written atomically.
 
@@ -370,7 +461,6 @@ class ExrBlockWriter(_BlockWriter):
     """
 
     ROWS_PER_CHUNK = 16
-    _ZIP = 3  # ZIP_COMPRESSION
 
     def __init__(self, path, width: int, height: int, channels: list[str], *, half: bool = True):
         channels = [str(c) for c in channels]
@@ -385,24 +475,7 @@ class ExrBlockWriter(_BlockWriter):
         self._offsets = np.zeros(self.n_chunks, dtype="<u8")
 
     def _start(self) -> None:
-        long_names = any(len(c.encode()) > 31 for c in self.channels)
-        chlist = b"".join(
-            self.channels[k].encode() + b"\0" + struct.pack("<iB3xii", 1 if self.half else 2, 0, 1, 1) for k in self.order
-        ) + b"\0"
-        box = struct.pack("<iiii", 0, 0, self.width - 1, self.height - 1)
-        attrs = [
-            ("channels", "chlist", chlist),
-            ("compression", "compression", bytes([self._ZIP])),
-            ("dataWindow", "box2i", box),
-            ("displayWindow", "box2i", box),
-            ("lineOrder", "lineOrder", b"\0"),
-            ("pixelAspectRatio", "float", struct.pack("<f", 1.0)),
-            ("screenWindowCenter", "v2f", struct.pack("<ff", 0.0, 0.0)),
-            ("screenWindowWidth", "float", struct.pack("<f", 1.0)),
-        ]
-        header = struct.pack("<ii", 20000630, 2 | (0x400 if long_names else 0))
-        header += b"".join(n.encode() + b"\0" + t.encode() + b"\0" + struct.pack("<i", len(v)) + v for n, t, v in attrs)
-        self._file.write(header + b"\0")
+        self._file.write(exr_header_bytes(self.width, self.height, self.channels, self.order, self.half))
         self._table_at = self._file.tell()
         self._file.write(self._offsets.tobytes())  # placeholder, rewritten in _finish
 
@@ -418,12 +491,7 @@ class ExrBlockWriter(_BlockWriter):
         self._pending = self._pending[full:].copy()
 
     def _chunk(self, y: int, rows: np.ndarray) -> None:
-        # per scanline, per channel in file order, ``width`` little-endian values
-        raw = np.ascontiguousarray(rows[:, :, self.order].transpose(0, 2, 1), dtype=self.dtype).view(np.uint8).ravel()
-        t = np.concatenate([raw[0::2], raw[1::2]])  # OpenEXR's ZIP byte reordering ...
-        t[1:] = (t[1:].astype(np.int16) - t[:-1] + 128).astype(np.uint8)  # ... and delta predictor
-        packed = zlib.compress(t.tobytes(), 4)
-        data = packed if len(packed) < len(raw) else raw.tobytes()
+        data = exr_zip_block(rows, self.order, self.dtype)
         self._offsets[y // self.ROWS_PER_CHUNK] = self._file.tell()
         self._file.write(struct.pack("<ii", y, len(data)) + data)
 

@@ -417,12 +417,12 @@ def _same(a: Mesh, b: Mesh) -> bool:
     ) and np.array_equal(np.asarray(a.curve_degree, np.int64), np.asarray(b.curve_degree, np.int64))
 
 
-def _try(mesh: Mesh, step: int | None, level: int) -> tuple[tuple[bytes, bytes], Mesh] | None:
+def _try(mesh: Mesh, step: int | None, level: int, validate: bool = True) -> tuple[tuple[bytes, bytes], Mesh] | None:
     enc = encode_mesh(mesh, step, level=level)
     if enc is None:
         return None
     try:
-        return enc, decode_mesh(*enc, mesh.domain)
+        return enc, decode_mesh(*enc, mesh.domain, full_validate=validate)
     except FormatError:
         return None
 
@@ -447,17 +447,18 @@ def _on_grid(mesh: Mesh, bits: int) -> bool:
     return np.array_equal(_denormalise(q / float(2**bits - 1), mesh.domain), mesh.vertices)
 
 
-def encode_roundtripped(mesh: Mesh, *, level: int = 19) -> tuple[bytes, bytes]:
+def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False) -> tuple[bytes, bytes]:
     """(MESH, TOPO) chunk data that decode to ``mesh`` bit for bit, order included.
 
     ``mesh`` should be ``roundtrip_mesh(m, bits)``: the file then reproduces exactly the geometry and order
     the features were fitted on. Tries, smallest first, the Draco precisions whose grid holds every vertex
     exactly (grids nest: 10 bits lie on the 20-bit grid) and takes the first under which ``mesh`` decodes to
     itself; any other valid mesh is stored with the lossless raw encoding. Raises ``MeshError`` when
-    ``mesh`` is invalid.
+    ``mesh`` is invalid. ``validated``: ``mesh`` passed ``Mesh.validate`` already (``roundtrip_mesh`` checked it),
+    so an encoding that decodes to exactly ``mesh`` needs no second check.
     """
     for step in [b for b in range(1, MAX_MESH_BITS + 1) if _on_grid(mesh, b)] + [None]:
-        res = _try(mesh, step, level)
+        res = _try(mesh, step, level, validate=not validated)
         if res is not None and _same(res[1], mesh):
             return res[0]
     raise MeshError("mesh cannot be stored: it is invalid (see Mesh.validate)")

@@ -16,11 +16,13 @@ import numpy as np
 from ..errors import InputError
 from .atomic import atomic_path
 
-__all__ = ["SampleSet", "check_samples", "default_channels", "read_channels", "read_npz", "read_samples",
-           "write_samples", "KEYS"]
+__all__ = ["SampleSet", "check_samples", "default_channels", "read_channels", "read_npz", "read_reference",
+           "read_samples", "write_samples", "KEYS", "REFERENCE_KEYS"]
 
 KEYS = ("xy", "values", "domain", "channels")
 """The arrays a samples file may hold; ``xy`` and ``values`` are required."""
+REFERENCE_KEYS = ("image", "domain", "channels")
+"""The arrays of a reference ``.npz`` (``dfc wos --reference``); ``image`` is required."""
 
 
 @dataclass(frozen=True)
@@ -158,6 +160,30 @@ def read_samples(path: str | Path) -> SampleSet:
     arrays = read_npz(path, KEYS, ("xy", "values"), "a samples file")
     return check_samples(SampleSet(arrays["xy"], arrays["values"], arrays.get("domain"),
                                    read_channels(arrays, path)), str(path))
+
+
+def read_reference(path: str | Path) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
+    """Exact values on a pixel grid, as ``dfc wos --reference`` writes them (``spec/samples.md``): an EXR (or PNG)
+    image, or an ``.npz`` with ``image`` (H, W, C) and optionally ``domain`` and ``channels``; told apart by content.
+
+    Returns (pixels (H, W, C) float32, domain or None). Raises ``InputError`` naming the file for unreadable files,
+    a misshapen image or NaN/Inf values.
+    """
+    from .image import read_image
+    from .sniff import file_kind
+
+    if file_kind(path) != "npz":
+        return read_image(path).pixels, None
+    arrays = read_npz(path, REFERENCE_KEYS, ("image",), "a reference file")
+    image = _float_array(arrays["image"], "image", str(path))
+    if image.ndim != 3 or min(image.shape) < 1:
+        raise InputError(f"{path}: image must have shape (H, W, C), got {image.shape}")
+    if not np.isfinite(image).all():
+        raise InputError(f"{path}: the image has NaN/Inf values")
+    domain = arrays.get("domain")
+    if domain is not None and (np.shape(domain) != (4,) or not np.isfinite(domain).all()):
+        raise InputError(f"{path}: domain must be 4 finite numbers, got {domain!r}")
+    return image.astype(np.float32), None if domain is None else tuple(float(v) for v in domain)
 
 
 def write_samples(path: str | Path, samples: SampleSet) -> None:

@@ -113,6 +113,13 @@ class SolveProblem:
         self.boundary_xy, self.boundary_values = self._pool(np.random.default_rng(seed))
         if not len(self.boundary_xy):
             raise InputError(f"{scene.curves.source or 'scene'}: no boundary point could be placed beside a curve")
+        self.pool = (torch.from_numpy(self.boundary_xy), torch.from_numpy(self.boundary_values))
+
+    def to(self, device) -> SolveProblem:
+        """Move the sampling tables (triangles, area distribution, boundary pool) to ``device``; returns self."""
+        self.corners, self.cdf = self.corners.to(device), self.cdf.to(device)
+        self.pool = tuple(t.to(device) for t in self.pool)
+        return self
 
     @property
     def data_range(self) -> float:
@@ -144,10 +151,13 @@ class SolveProblem:
         return xy[keep], values.astype(np.float32)
 
     def interior(self, n: int, generator: torch.Generator) -> Tensor:
-        """(n, 2) float64 points stratified over the triangles (module docstring), domain units."""
-        u = (torch.arange(n, dtype=torch.float64) + torch.rand(n, generator=generator, dtype=torch.float64)) / n
+        """(n, 2) float64 points stratified over the triangles (module docstring), domain units, drawn on the
+        generator's device (where ``to`` put the tables)."""
+        device = generator.device
+        u = (torch.arange(n, dtype=torch.float64, device=device)
+             + torch.rand(n, generator=generator, dtype=torch.float64, device=device)) / n
         tri = torch.searchsorted(self.cdf, u).clamp_max(len(self.cdf) - 1)
-        r = torch.rand(n, 2, generator=generator, dtype=torch.float64)
+        r = torch.rand(n, 2, generator=generator, dtype=torch.float64, device=device)
         flip = r.sum(dim=1) > 1
         r[flip] = 1 - r[flip]
         a = self.corners[tri]
@@ -155,8 +165,8 @@ class SolveProblem:
 
     def boundary(self, n: int, generator: torch.Generator) -> tuple[Tensor, Tensor]:
         """(n, 2) float64 boundary points and their (n, C) float32 targets, drawn from the pool."""
-        rows = torch.randint(len(self.boundary_xy), (n,), generator=generator).numpy()
-        return torch.from_numpy(self.boundary_xy[rows]), torch.from_numpy(self.boundary_values[rows])
+        rows = torch.randint(len(self.boundary_xy), (n,), generator=generator, device=generator.device)
+        return self.pool[0][rows], self.pool[1][rows]
 
 
 class TwiceDifferentiable(nn.Module):
@@ -253,6 +263,7 @@ def dfc_model(mesh: Mesh, channels: list[str], mean: np.ndarray, *, dim: int = 5
     from ..field.model import FieldModel
 
     model = FieldModel(FeatureField(mesh, dim=dim, seed=seed, device=device), channels, activation="tanh", seed=seed)
+    model.decoder.mixed_precision = False  # the energy differentiates the MLP twice: keep float32 there
     with torch.no_grad():
         model.decoder.linears()[-1].bias.copy_(torch.as_tensor(mean, dtype=torch.float32))
     return model
@@ -333,7 +344,7 @@ def solve_scene(curves, settings: SolveSettings | None = None, *, problem: Solve
                     callback=callback)
     seconds["solve_s"] = time.perf_counter() - clock
     info = encoder_info(settings, curves.source, {"input": "physics-informed solve"})
-    blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits)
+    blob, sizes = encode_dfield(to_contents(model, info), feature_bits=settings.feature_bits, mesh_validated=True)
     report = SolveReport(total_bytes=len(blob), chunk_bytes=sizes, n_vertices=mesh.n_vertices,
                          n_triangles=mesh.n_triangles, n_features=model.field.n_features,
                          energy=history["energy"][-1], boundary=history["boundary"][-1], seconds=seconds)

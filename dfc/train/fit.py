@@ -15,12 +15,12 @@ from ..errors import InputError
 from ..field.model import FieldModel
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
-from ..metrics import data_range as signal_range
+from ..metrics import quality_scale
 from .loop import BETAS, Sampler, Schedule, train
-from .losses import DataLoss
+from .losses import DataLoss, auto_loss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["DEFAULT_STEPS", "fit", "fit_frames", "fit_image", "fit_samples"]
+__all__ = ["DEFAULT_STEPS", "fit", "fit_bands", "fit_frames", "fit_image", "fit_samples"]
 
 
 def fit(
@@ -38,6 +38,7 @@ def fit(
     data_range: float = 1.0,
     final_lr: float | None = None,
     weight_bits: int | None = None,
+    tonemap: bool = False,
 ) -> dict:
     """Train ``model`` in place on batches from a data sampler (``dfc.train.loop.train`` with ``DataLoss``).
 
@@ -48,10 +49,10 @@ def fit(
         (``dfc.train.samplers``; ``extra`` as ``DataLoss`` takes it)
     steps : number of optimiser steps
     lr, betas : Adam settings (DESIGN §6: 1e-2, (0.9, 0.99))
-    loss : {"mse", "relmse"}, see ``loss_value``
+    loss : {"mse", "relmse", "logmse"}, see ``loss_value``
     seed : seeds the CPU generator handed to the sampler
     callback : called after each step as ``callback(step, loss, psnr)``; psnr is of the batch, in dB
-        with ``data_range`` (0-dim tensors)
+        with ``data_range``, of tone-mapped values with ``tonemap`` (0-dim tensors; ``dfc.metrics.quality_scale``)
     qat_steps : the last ``qat_steps`` steps run with ``model.quantization = {"feature_bits":
         feature_bits}`` (quantised features, fp16 decoder weights), which stays set on return so the
         model evaluates as the written file will decode
@@ -65,7 +66,7 @@ def fit(
     """
     schedule = Schedule(steps, lr=lr, final_lr=final_lr, betas=betas, qat_steps=qat_steps, feature_bits=feature_bits,
                         weight_bits=weight_bits)
-    return train(model, DataLoss(loss, data_range), sampler, schedule, seed=seed, callback=callback)
+    return train(model, DataLoss(loss, data_range, tonemap), sampler, schedule, seed=seed, callback=callback)
 
 
 DEFAULT_STEPS = 1000
@@ -103,6 +104,7 @@ def fit_image(
     data_range: float | None = None,
     init: FieldModel | None = None,
     exclude: np.ndarray | None = None,
+    tonemap: bool | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster covering ``mesh.domain``.
@@ -115,7 +117,7 @@ def fit_image(
     batch_size : samples per step (stratified, see ``image_sampler``)
     dim : feature channels
     seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
-    loss : {"auto", "mse", "relmse"}; "auto" is "relmse" for HDR images (any value > 1), else "mse"
+    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (any value > 1), else "mse"
     qat_steps : quantisation-aware final steps (default ``DEFAULT_QAT_FRACTION`` of ``steps``)
     feature_bits : bits of the features during those steps (as the file will store them)
     weight_bits : bits of the integer weight matrices during those steps (None: fp16, as ``MLPW`` stores them)
@@ -126,7 +128,8 @@ def fit_image(
         (``edge_pixels``): their box-filtered blend of both sides would otherwise pull the field's
         values near every edge towards the blend, visible as a soft band at zoom. Ignored when it
         would leave out more than ``MAX_DROPPED_FRACTION`` of the pixels.
-    data_range : of the batch PSNR the callback sees (default ``dfc.metrics.data_range`` of the image)
+    data_range, tonemap : the scale of the batch PSNR the callback sees (default: ``dfc.metrics.quality_scale`` of
+        the image, the scale ``dfc.codec`` reports the file's PSNR on)
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at every pixel centre) instead of from scratch
     exclude : optional (H, W) bool, pixels never trained on besides the mixed ones (held out to measure the fit)
@@ -143,7 +146,8 @@ def fit_image(
     if channels is None:
         channels = getattr(image, "channels", None) or default_channels(pixels.shape[2])
     values = pixels.reshape(-1, pixels.shape[2])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw)
+    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
+                            model_kw)
     field = model.field
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
@@ -169,22 +173,33 @@ def fit_image(
     return model
 
 
-def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw,
+def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw,
                times=None):
     """A fresh ``FieldModel`` for targets ``values`` (M, C) and the ``fit`` settings derived from them
-    (one feature slice per entry of ``times`` when given).
+    (one feature slice per entry of ``times`` when given); see ``_model_for``."""
+    log_mean = np.log1p(np.maximum(values, 0.0)).mean(axis=0, dtype=np.float64)
+    return _model_for(float(values.min()), float(values.max()), values.mean(axis=0, dtype=np.float64), log_mean, mesh,
+                      channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw, times)
 
-    HDR targets (some value > 1) default to the relative MSE and, when every value is > -1, to the ``log`` value
+
+def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mesh, channels, loss, steps, qat_steps,
+               dim, seed, device, scale, model_kw, times=None):
+    """A fresh ``FieldModel`` for targets whose values span ``lo .. hi``, with per-channel ``mean`` (C,) and mean
+    ``log_mean`` (C,) of ``log(1 + max(v, 0))``, and the ``fit`` settings derived from them.
+
+    HDR targets (some value > 1) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
     transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
-    output bias starts at the (transformed) mean of the targets. ``data_range`` None means the colours' range
-    (``dfc.metrics.data_range``). Returns (model, dict of ``fit`` keywords: steps, qat_steps, loss, data_range).
+    output bias starts at the mean of the targets in its output space (for the log transform the mean of the logs,
+    not the log of the mean, which bright pixels pull far above most of the image). ``scale`` is (data_range,
+    tonemap) of the progress PSNR, each None for ``dfc.metrics.quality_scale`` of the targets. Returns (model, dict
+    of ``fit`` keywords: steps, qat_steps, loss, data_range, tonemap).
     """
     from ..field.feature_field import FeatureField
 
-    hdr = float(values.max()) > 1.0
+    hdr = hi > 1.0
     if loss == "auto":
-        loss = "relmse" if hdr else "mse"
-    if hdr and float(values.min()) > -1.0:
+        loss = auto_loss(np.array([lo, hi]))
+    if hdr and lo > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps
     if qat_steps is None:
@@ -192,12 +207,76 @@ def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, 
     n_slices = 1 if times is None else len(times)
     field = FeatureField(mesh, dim=dim, seed=seed, n_slices=n_slices, times=times, device=device)
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
-    mean = torch.from_numpy(values.mean(axis=0, dtype=np.float64))
-    with torch.no_grad():  # start at the mean value: HDR values are far from the MLP's initial output
-        out_bias = model.decoder.linears()[-1].bias
-        out_bias.copy_(torch.log1p(mean.clamp_min(0)) if model.transform == "log" else mean)
-    data_range = signal_range(values) if data_range is None else data_range
-    return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range}
+    with torch.no_grad():
+        model.decoder.linears()[-1].bias.copy_(torch.from_numpy(log_mean if model.transform == "log" else mean))
+    default = quality_scale(np.array([lo, hi]))
+    data_range, tonemap = scale
+    data_range = default.data_range if data_range is None else data_range
+    tonemap = default.tonemap if tonemap is None else tonemap
+    return model, {"steps": steps, "qat_steps": qat_steps, "loss": loss, "data_range": data_range,
+                   "tonemap": tonemap}
+
+
+def fit_bands(
+    source,
+    mesh,
+    stats,
+    *,
+    steps: int | None = None,
+    batch_size: int = 1 << 14,
+    epoch_pixels: int | None = None,
+    mixed=None,
+    held_out=None,
+    dim: int = 5,
+    seed: int = 0,
+    loss: str = "auto",
+    device: str = "cpu",
+    qat_steps: int | None = None,
+    feature_bits: int = 8,
+    weight_bits: int | None = None,
+    callback: Callable[[int, Tensor, Tensor], None] | None = None,
+    channels: list[str] | None = None,
+    lr: float = 1e-2,
+    final_lr: float | None = 1e-3,
+    data_range: float | None = None,
+    tonemap: bool | None = None,
+    **model_kw,
+) -> FieldModel:
+    """Fit a ``FieldModel`` on ``mesh`` to a raster read in bands (``dfc.io.bands``), out of core and, inside a
+    ``torch.distributed`` run, data-parallel (``dfc.train.bands.band_sampler``, ``dfc.train.distributed``).
+
+    Parameters
+    ----------
+    source : band source covering ``mesh.domain``; stats : its ``dfc.train.bands.BandStats`` over all ranks (range
+        and mean initialise the model as ``fit_image`` does)
+    batch_size : samples per step over all ranks (rank r draws ``batch_size // N``, plus one for r below the
+        remainder)
+    epoch_pixels : pixels per epoch over all ranks (default ``dfc.train.bands.default_epoch_pixels``)
+    mixed, held_out : pixels never sampled (``EdgeMask``, ``HeldOut``, or None)
+    other arguments : as in ``fit_image``
+
+    Returns
+    -------
+    FieldModel, in evaluation mode, equal on every rank; quantised mode stays on when ``qat_steps > 0``.
+    """
+    from .bands import band_sampler
+    from .distributed import world
+
+    rank, size = world()
+    model, run = _model_for(float(stats.lo.min()), float(stats.hi.max()), stats.mean, stats.log_mean, mesh,
+                            channels or source.channels, loss, steps, qat_steps, dim, seed, device,
+                            (data_range, tonemap), model_kw)
+    local = batch_size // size + (rank < batch_size % size)
+    if local < 1:
+        raise InputError(f"batch size {batch_size} is smaller than the number of ranks ({size})")
+    # on a GPU each epoch's points are located once, so that a step has no host round trip; on the CPU that would
+    # save nothing (every sample is used once per epoch) and cost about 84 bytes per sample
+    query = model.field.query if torch.device(device).type == "cuda" else None
+    sampler = band_sampler(source, mesh.domain, local, epoch_pixels=epoch_pixels, mixed=mixed, held_out=held_out,
+                           rank=rank, world=size, device=device, query=query)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+        weight_bits=weight_bits, **run)
+    return model
 
 
 SAMPLES_LR = 5e-3
@@ -226,6 +305,7 @@ def fit_samples(
     final_lr: float | None = SAMPLES_FINAL_LR,
     data_range: float | None = None,
     init: FieldModel | None = None,
+    tonemap: bool | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a sample set (noisy values at scattered, possibly repeated points).
@@ -236,10 +316,10 @@ def fit_samples(
     mesh : dfc.geometry.mesh.Mesh
     steps : optimiser steps (default ``DEFAULT_STEPS``)
     batch_size : samples per step (shuffled epochs, see ``point_sampler``)
-    dim, seed, qat_steps, feature_bits, weight_bits, callback, data_range, **model_kw : as in ``fit_image``
+    dim, seed, qat_steps, feature_bits, weight_bits, callback, data_range, tonemap, **model_kw : as in ``fit_image``
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (lower than ``fit_image``'s, see
         ``SAMPLES_LR``)
-    loss : {"auto", "mse", "relmse"}; "auto" is "relmse" when some value is > 1 (HDR), else "mse"
+    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" when some value is > 1 (HDR), else "mse"
     channels : output channel names (default: the sample set's, else ``dfc.io.samples.default_channels``)
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at up to ``MAX_CARRY_POINTS`` of the sample positions)
@@ -260,7 +340,8 @@ def fit_samples(
     values = samples.values
     if channels is None:
         channels = samples.channels or default_channels(values.shape[1])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw)
+    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
+                            model_kw)
     if init is not None:
         from ..field.transfer import carry_over
 
@@ -290,6 +371,7 @@ def fit_frames(
     lr: float = 1e-2,
     final_lr: float | None = 1e-3,
     data_range: float | None = None,
+    tonemap: bool | None = None,
     **model_kw,
 ) -> FieldModel:
     """Fit a time-sliced ``FieldModel`` on ``mesh`` to a frame sequence (``dfc.io.frames.FrameSequence``) covering
@@ -306,8 +388,8 @@ def fit_frames(
     if channels is None:
         channels = sequence.channels or default_channels(frames.shape[3])
     values = frames.reshape(-1, frames.shape[3])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, data_range, model_kw,
-                            times=sequence.times)
+    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
+                            model_kw, times=sequence.times)
     exclude = edge_pixels(mesh, *frames.shape[1:3])
     sampler = frame_sampler(frames, sequence.times, mesh.domain, batch_size, device=device,
                             exclude=exclude if exclude.mean() <= MAX_DROPPED_FRACTION else None)

@@ -5,7 +5,12 @@ baselines — goes through ``train``.
 ``sampler``, evaluates ``loss`` on it and steps. The ``Schedule`` gives the learning rate (optionally decaying
 geometrically), the quantisation-aware final steps and how coarse-to-fine stages are run. The library never prints:
 progress goes to ``callback``. Metrics stay on the model's device during the run (no host round trip per step) and
-come back as floats at the end.
+come back as floats at the end; the sampling generator lives on the model's device too.
+
+Data-parallel runs (``dfc.train.distributed``): inside a process group of several ranks the model is wrapped in
+``DistributedDataParallel`` (re-wrapped when coarse-to-fine stages grow it and when quantisation-aware steps start),
+so every step averages the ranks' gradients and every rank takes the same optimiser step; each rank draws its own
+batch with the generator seeded ``rank_seed(seed, rank)``.
 """
 
 from __future__ import annotations
@@ -15,6 +20,8 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
+
+from .distributed import parallel, rank_seed, world
 
 __all__ = ["BETAS", "Loss", "Sampler", "Schedule", "train"]
 
@@ -77,8 +84,9 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
     model : any module; ``model.quantization`` is set for quantisation-aware steps (``FieldModel``, baselines), and a
         model with ``stages(steps) -> [n, …]`` and ``next_stage()`` trains coarse to fine: it grows between stages and
         each stage gets a fresh Adam (its parameters are new)
-    loss, sampler : see ``Loss`` and ``Sampler``; the sampler's generator is a CPU ``torch.Generator`` seeded by
-        ``seed``
+    loss, sampler : see ``Loss`` and ``Sampler``; the sampler's generator is a ``torch.Generator`` on the model's
+        device seeded by ``seed`` (rank r of a data-parallel run: ``rank_seed(seed, r)``); ``loss`` gets the model,
+        or in a data-parallel run its ``DistributedDataParallel`` wrapper
     callback : ``callback(step, *metrics)`` after every step, metrics as 0-dim tensors (``float()`` reads one)
     """
     schedule.check()
@@ -86,23 +94,27 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
     total = sum(stages)
     qat_from = total - schedule.qat_steps if schedule.qat_steps else None
     history: dict[str, list[Tensor]] = {}
-    generator = torch.Generator().manual_seed(seed)
+    rank = world()[0]
+    device = next(model.parameters(), torch.empty(0)).device
+    generator = torch.Generator(device).manual_seed(rank_seed(seed, rank))
     step = 0
     model.train()
     for k, n in enumerate(stages):
         if k:
             model.next_stage()
         if schedule.restart_stages:
-            generator = torch.Generator().manual_seed(seed + k)
+            generator = torch.Generator(device).manual_seed(rank_seed(seed + k, rank))
         start, length = (step, n) if schedule.restart_stages else (0, total)
         decay = schedule.decay(length)
         optimizer = torch.optim.Adam(model.parameters(), lr=schedule.lr, betas=schedule.betas)
+        net = parallel(model)
         for _ in range(n):
             if step == qat_from:
                 model.quantization = schedule.quantization()
+                net = parallel(model, sync=False)
             for group in optimizer.param_groups:
                 group["lr"] = schedule.lr * decay ** (step - start)
-            value, metrics = loss(model, sampler(step, generator))
+            value, metrics = loss(net, sampler(step, generator))
             optimizer.zero_grad(set_to_none=True)
             value.backward()
             optimizer.step()

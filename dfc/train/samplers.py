@@ -37,7 +37,7 @@ class _Epochs:
         parts = []
         while count:
             if self.pos == len(self.order):
-                self.order, self.pos = torch.randperm(self.n, generator=generator), 0
+                self.order, self.pos = torch.randperm(self.n, generator=generator, device=generator.device), 0
                 self.epoch += 1
             k = min(count, self.n - self.pos)
             parts.append((self.order[self.pos : self.pos + k], self.epoch))
@@ -49,17 +49,18 @@ class _Epochs:
 class _PixelGrid:
     """Pixel (i, j) of a ``width × height`` raster over ``domain`` covers ``[x0 + i·sx, x0 + (i+1)·sx] × …``."""
 
-    def __init__(self, domain, width: int, height: int):
+    def __init__(self, domain, width: int, height: int, device="cpu"):
         x0, y0, x1, y1 = domain
         self.width = width
-        self.origin = torch.tensor([x0, y0], dtype=torch.float64)
-        self.pixel_size = torch.tensor([(x1 - x0) / width, (y1 - y0) / height], dtype=torch.float64)
+        self.origin = torch.tensor([x0, y0], dtype=torch.float64, device=device)
+        self.pixel_size = torch.tensor([(x1 - x0) / width, (y1 - y0) / height], dtype=torch.float64, device=device)
 
     def points(self, pixel: Tensor, generator: torch.Generator) -> Tensor:
-        """One uniformly jittered point (N, 2) float64 in each of the flat pixel indices ``pixel`` (N,)."""
-        jitter = torch.rand(len(pixel), 2, generator=generator, dtype=torch.float64)
-        ij = torch.stack([pixel % self.width, pixel // self.width], dim=1).to(torch.float64)
-        return self.origin + (ij + jitter) * self.pixel_size
+        """One uniformly jittered point (N, 2) float64 in each of the flat pixel indices ``pixel`` (N,), on the
+        grid's device (jitter drawn on the generator's)."""
+        jitter = torch.rand(len(pixel), 2, generator=generator, dtype=torch.float64, device=generator.device)
+        ij = torch.stack([pixel % self.width, pixel // self.width], dim=1).to(self.origin.device, torch.float64)
+        return self.origin + (ij + jitter.to(self.origin.device)) * self.pixel_size
 
 
 def _kept_pixels(height: int, width: int, exclude) -> Tensor:
@@ -86,15 +87,15 @@ class _StratifiedPixels:
     def __init__(self, pixels: Tensor, domain, batch_size: int, query, jitter_sets: int, generator: torch.Generator,
                  keep: Tensor):
         self.pixels = pixels.reshape(-1, pixels.shape[-1])
-        self.keep = keep  # (n,) int64 flat indices of the pixels sampled
-        self.grid = _PixelGrid(domain, pixels.shape[1], pixels.shape[0])
+        self.keep = keep.to(pixels.device)  # (n,) int64 flat indices of the pixels sampled
+        self.grid = _PixelGrid(domain, pixels.shape[1], pixels.shape[0], pixels.device)
         self.batch_size = batch_size
         self.epochs = _Epochs(len(keep))
         self.cache = None
         if query is not None:
-            xy = torch.cat([self.grid.points(keep, generator) for _ in range(jitter_sets)])
+            xy = torch.cat([self.grid.points(self.keep, generator) for _ in range(jitter_sets)])
             with torch.no_grad():
-                parts = [query(xy[s : s + QUERY_CHUNK].to(pixels.device)) for s in range(0, len(xy), QUERY_CHUNK)]
+                parts = [query(xy[s : s + QUERY_CHUNK]) for s in range(0, len(xy), QUERY_CHUNK)]
             self.cache = (xy, torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
 
     def __call__(self, step: int, generator: torch.Generator):
@@ -103,14 +104,13 @@ class _StratifiedPixels:
         # with a cache, epoch e uses jitter set (e - 1) mod sets, whose rows start at that index times n
         rows = torch.cat([order + ((epoch - 1) % sets) * n for order, epoch in self.epochs.take(self.batch_size,
                                                                                                generator)])
+        rows = rows.to(self.pixels.device)
         pixel = self.keep[rows % n]
-        device = self.pixels.device
-        target = self.pixels[pixel.to(device)]
+        target = self.pixels[pixel]
         if self.cache is None:
-            return self.grid.points(pixel, generator).to(device), target
+            return self.grid.points(pixel, generator), target
         xy, idx, w = self.cache
-        rows_d = rows.to(idx.device)
-        return xy[rows].to(device), target, (idx[rows_d], w[rows_d])
+        return xy[rows], target, (idx[rows], w[rows])
 
 
 def image_sampler(image, domain, batch_size: int, *, device: str = "cpu", query=None, jitter_sets: int = 8,
@@ -204,19 +204,18 @@ class _StratifiedFrames:
     def __init__(self, frames: Tensor, times: Tensor, domain, batch_size: int, keep: Tensor):
         self.values = frames.reshape(-1, frames.shape[-1])  # row s · H · W + pixel
         self.times = times
-        self.keep = keep  # (n,) flat pixel indices sampled in every frame
+        self.keep = keep.to(frames.device)  # (n,) flat pixel indices sampled in every frame
         self.pixels_per_frame = frames.shape[1] * frames.shape[2]
-        self.grid = _PixelGrid(domain, frames.shape[2], frames.shape[1])
+        self.grid = _PixelGrid(domain, frames.shape[2], frames.shape[1], frames.device)
         self.batch_size = batch_size
         self.epochs = _Epochs(frames.shape[0] * len(keep))
 
     def __call__(self, step: int, generator: torch.Generator):
-        rows = torch.cat([order for order, _ in self.epochs.take(self.batch_size, generator)])
+        rows = torch.cat([order for order, _ in self.epochs.take(self.batch_size, generator)]).to(self.values.device)
         frame, pixel = rows // len(self.keep), self.keep[rows % len(self.keep)]
         xy = self.grid.points(pixel, generator)
-        device = self.values.device
-        target = self.values[(frame * self.pixels_per_frame + pixel).to(device)]
-        return xy.to(device), target, {"t": self.times[frame.to(device)]}
+        target = self.values[frame * self.pixels_per_frame + pixel]
+        return xy, target, {"t": self.times[frame]}
 
 
 def frame_sampler(frames, times, domain, batch_size: int, *, device: str = "cpu", exclude=None) -> Sampler:
@@ -256,11 +255,11 @@ class _PhysicsPoints:
 def physics_sampler(problem, batch_size: int, *, device="cpu") -> Sampler:
     """Sampler of a physics-informed solve: ``batch_size`` interior points and as many boundary points per step.
 
-    problem : has ``interior(n, generator) -> (n, 2)`` and ``boundary(n, generator) -> ((n, 2), (n, C))`` tensors
-        (``dfc.physics.solve.SolveProblem``)
+    problem : has ``to(device)``, ``interior(n, generator) -> (n, 2)`` and ``boundary(n, generator) -> ((n, 2),
+        (n, C))`` tensors drawn on the generator's device (``dfc.physics.solve.SolveProblem``); moved to ``device``
 
     Returns
     -------
     ``sampler(step, generator) -> (xy (B, 2) float64, boundary xy (B, 2) float64, targets (B, C) float32)``
     """
-    return _PhysicsPoints(problem, batch_size, device)
+    return _PhysicsPoints(problem.to(device), batch_size, device)

@@ -89,7 +89,8 @@ def test_area_resize_is_a_box_filter():
 
 def _brute_force_rows(model: HashGrid, x: float, y: float) -> list[list[int]]:
     """Corner rows per level with Python integers (independent of the vectorised code)."""
-    lay = level_layout(model.levels, model.base_resolution, model.finest_resolution, model.extent, model.table_size)
+    lay = level_layout(model.levels, model.base_resolution, model.finest_resolution, model.extent, model.table_size,
+                       model.dense_levels)
     side = max(model.domain[2] - model.domain[0], model.domain[3] - model.domain[1])
     u, v = (x - model.domain[0]) / side, (y - model.domain[1]) / side
     out = []
@@ -100,7 +101,7 @@ def _brute_force_rows(model: HashGrid, x: float, y: float) -> list[list[int]]:
         for dj in (0, 1):
             for di in (0, 1):
                 i, j = i0 + di, j0 + dj
-                if nx * ny > model.table_size:
+                if nx * ny > model.table_size and level >= model.dense_levels:
                     row = ((i * PRIMES[0]) ^ ((j * PRIMES[1]) % 2**32)) % model.table_size
                 else:
                     row = i + j * nx
@@ -118,6 +119,59 @@ def test_hash_rows_match_a_brute_force_reference():
         assert rows[k].tolist() == _brute_force_rows(model, x, y)
     torch.testing.assert_close(w.sum(-1), torch.ones(len(pts), model.levels))
     assert int(rows.max()) < model.table.shape[0]
+
+
+def test_dense_coarse_levels_are_not_hashed():
+    model = HashGrid(DOMAIN, RGB, levels=6, table_size=60, base_resolution=8, finest_resolution=64, dense_levels=3)
+    lay = level_layout(6, 8, 64, model.extent, 60, 3)
+    assert model.first_hashed == 3 and not lay["hashed"][:3].any() and lay["hashed"][3:].all()
+    assert np.array_equal(lay["rows"][:3], lay["nx"][:3] * lay["ny"][:3]) and (lay["rows"][:3] > 60).all()
+    pts = np.array([[0.0, 0.0], [256.0, 256.0], [13.37, 200.1], [77.7, 31.3]])
+    rows, _ = model.corners(torch.from_numpy(pts))
+    for k, (x, y) in enumerate(pts):
+        assert rows[k].tolist() == _brute_force_rows(model, x, y)
+    sized = HashGrid.for_budget(20_000, DOMAIN, RGB, levels=16, hidden=16, dense_levels=4)
+    assert 0.97 * 20_000 <= sized.stored_bytes() <= 20_000 and sized.first_hashed >= 4
+    with pytest.raises(ValueError, match="dense levels"):
+        HashGrid.for_budget(3_000, DOMAIN, RGB, levels=8, hidden=16, dense_levels=8)
+
+
+@pytest.mark.parametrize("features", [1, 2, 3, 6])
+def test_relu_field_channels_trade_for_resolution(features):
+    model = ReluField.for_budget(12_000, DOMAIN, RGB, features=features)
+    assert 0.97 * 12_000 <= model.stored_bytes() <= 12_000
+    assert (model.head is None) == (features == 3) and model.describe()["features"] == features
+    model.init_mean(torch.tensor([0.2, 0.5, 0.9]))
+    torch.testing.assert_close(model(_centres(4)), torch.tensor([[0.2, 0.5, 0.9]]).expand(16, 3))
+    nodes = model.shape[0] * model.shape[1]
+    assert nodes == pytest.approx((12_000 - (0 if features == 3 else 2 * (features + 1) * 3)) / (2 * features), rel=0.03)
+    for _ in model.stages(10)[1:]:
+        model.next_stage()
+    assert model.stored_bytes() == fp16_bytes(model)
+
+
+@pytest.mark.parametrize("kernel", ["bicubic", "lanczos"])
+def test_pixel_images_reproduce_their_pixels_at_the_centres(image, kernel):
+    from dfc.bench.baselines.upsample import PixelImage
+
+    model = PixelImage(image, DOMAIN, RGB, n_bytes=123, kernel=kernel)
+    with torch.no_grad():
+        out = model(_centres(32)).numpy().reshape(32, 32, 3)
+    np.testing.assert_allclose(out, image, atol=1e-5)
+    other = model.with_kernel("bicubic" if kernel == "lanczos" else "lanczos")
+    assert other.stored_bytes() == 123 and other.size == (32, 32) and np.array_equal(other.pixels(), image)
+    flat = PixelImage(np.full((5, 7, 1), 0.25, np.float32), DOMAIN, ["Y"], n_bytes=1, kernel=kernel)
+    xy = torch.from_numpy(np.random.default_rng(0).random((100, 2)) * 256)
+    torch.testing.assert_close(flat(xy), torch.full((100, 1), 0.25))  # weights sum to one everywhere
+
+
+def test_lanczos_differs_from_bicubic_between_centres(image):
+    from dfc.bench.baselines.upsample import PixelImage
+
+    xy = torch.from_numpy(np.random.default_rng(1).random((200, 2)) * 256)
+    a = PixelImage(image, DOMAIN, RGB, n_bytes=1, kernel="bicubic")(xy)
+    b = PixelImage(image, DOMAIN, RGB, n_bytes=1, kernel="lanczos")(xy)
+    assert 0 < float((a - b).abs().max()) < 0.2
 
 
 def test_hash_grid_interpolates_bilinearly_within_a_cell():

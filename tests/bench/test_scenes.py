@@ -110,3 +110,24 @@ def test_default_probes_lie_on_a_discontinuity(name):
     pts = _points(scene.curves.control_points, 4001)
     for p in probes:
         assert np.min(np.linalg.norm(pts - p, axis=1)) < 1e-9
+
+
+def test_stripes_are_exact_band_by_band_and_graphs_of_their_pieces():
+    from dfc.bench.scenes import Stripes
+
+    scene = Stripes(300.0, boundaries=6, pieces=5, seed=3)
+    curves = scene.curves()
+    assert len(curves) == 30 and curves.domain == (0.0, 0.0, 300.0, 300.0)
+    cp = curves.control_points
+    np.testing.assert_allclose(np.diff(cp[..., 0], axis=1), 20.0)  # x linear in t: each piece is a graph y(x)
+    t = np.linspace(0, 1, 9)
+    on = evaluate(cp, np.tile(t, (len(cp), 1))).reshape(6, -1, 2)
+    np.testing.assert_allclose(scene.boundary_y(on[0, :, 0])[0], on[0, :, 1], atol=1e-9)
+    assert (np.diff(scene.boundary_y(np.linspace(0, 300, 1001)), axis=0) > 0).all()  # boundaries never meet
+    rows = np.concatenate([scene.rows(y0, min(150, y0 + 17), 120, 150) for y0 in range(0, 150, 17)])
+    X, Y = np.meshgrid((np.arange(120) + 0.5) * 2.5, (np.arange(150) + 0.5) * 2.0)
+    exact = scene.value(np.stack([X.ravel(), Y.ravel()], 1)).reshape(150, 120, 3)
+    np.testing.assert_allclose(rows, exact, rtol=0, atol=1e-6)
+    p = np.array([[150.0, scene.boundary_y(np.array([150.0]))[2, 0]]])
+    above, below = scene.value(p - [0, 1e-7]), scene.value(p + [0, 1e-7])
+    assert np.abs(above - below).max() > 1e-3  # a jump across every boundary

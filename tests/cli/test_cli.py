@@ -172,6 +172,8 @@ def test_input_errors_are_one_line(encoded, tmp_path, capsys):
                    "--device", "tpu"], "--device"))
     cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o12.dfield",
                    "--weight-bits", "1"], "--weight-bits"))
+    cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o13.dfield",
+                   "--refine", "1", "--epoch-pixels", "1000"], "--refine"))  # refinement needs the image whole
     for argv, match in cases:
         code, _, err = run(argv, capsys)
         assert_one_line_error(code, err, match)

@@ -17,6 +17,10 @@ from dfc.geometry.sources.dcxml import read_dcxml
 from dfc.geometry.sources.svg import arc_pieces
 from dfc.geometry.tolerances import tol
 
+from ..conftest import SAMPLES
+
+SAMPLE_JSON = SAMPLES / "sample.json"
+
 SVG_NS = 'xmlns="http://www.w3.org/2000/svg"'
 
 
@@ -548,8 +552,27 @@ def test_xml_errors(tmp_path, text, message):
 # ------------------------------------------------------------------------------------------- dispatch
 
 
-def test_read_any_rejects_unknown_extension_and_missing_file(tmp_path):
-    with pytest.raises(CurveError, match=r"c\.txt: unknown curves file extension '\.txt'; accepted: \.svg, \.json, \.xml"):
+def test_read_any_rejects_unknown_content_and_missing_file(tmp_path):
+    (tmp_path / "c.txt").write_text("M 0 0 L 1 1")
+    with pytest.raises(CurveError, match=r"c\.txt: unknown curves file extension '\.txt' and content that is neither"):
         read_any(tmp_path / "c.txt")
     with pytest.raises(CurveError, match="no such file"):
+        read_any(tmp_path / "absent.txt")
+    with pytest.raises(CurveError, match="no such file"):
         read_curves(tmp_path / "absent.json")
+
+
+def test_read_any_by_content_when_the_extension_says_nothing(tmp_path):
+    """Curves piped through standard input arrive without an extension: JSON, SVG and diffusion-curve XML are told
+    apart by their content."""
+    sample = read_any(SAMPLE_JSON)
+    (tmp_path / "stdin").write_bytes(SAMPLE_JSON.read_bytes())
+    got = read_any(tmp_path / "stdin")
+    np.testing.assert_array_equal(got.control_points, sample.control_points)
+    (tmp_path / "svg").write_text('<?xml version="1.0"?>\n<svg xmlns="http://www.w3.org/2000/svg" width="10" '
+                                  'height="10"><path d="M 1 1 L 9 9"/></svg>')
+    assert read_any(tmp_path / "svg").domain == (0.0, 0.0, 10.0, 10.0)
+    (tmp_path / "xml").write_text("<curve_set/>")
+    with pytest.raises(CurveError) as e:  # read as diffusion-curve XML, which refuses an empty set by its own rule
+        read_any(tmp_path / "xml")
+    assert "unknown curves file extension" not in str(e.value)

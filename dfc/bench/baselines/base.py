@@ -161,12 +161,14 @@ def fit_baseline(
     final_lr: float | None = 1e-3,
     callback: Callable[..., None] | None = None,
     data_range: float = 1.0,
+    tonemap: bool = False,
 ) -> dict:
     """Fit a baseline to a data sampler for ``steps`` steps (``dfc.train.loop.train`` with ``DataLoss``), then
     round it to storage.
 
     Coarse-to-fine models train stage by stage (``model.stages``), each stage with a fresh Adam and the
-    learning-rate schedule restarted; ``callback(step, loss, psnr)`` sees the global step. A model with no
+    learning-rate schedule restarted; ``callback(step, loss, psnr)`` sees the global step, its batch PSNR with
+    ``data_range`` on tone-mapped values when ``tonemap`` (``dfc.metrics.quality_scale``). A model with no
     trainable parameters (the raster) is returned untouched. Returns ``{"loss": [...], "psnr": [...]}``.
     """
     from ...train.loop import Schedule, train
@@ -175,7 +177,7 @@ def fit_baseline(
     if not any(p.requires_grad for p in model.parameters()):
         return {"loss": [], "psnr": []}
     schedule = Schedule(steps, lr=lr, final_lr=final_lr, restart_stages=True)
-    history = train(model, DataLoss(loss, data_range), lambda step, g: sampler(step, g)[:2], schedule, seed=seed,
-                    callback=callback)
+    history = train(model, DataLoss(loss, data_range, tonemap), lambda step, g: sampler(step, g)[:2], schedule,
+                    seed=seed, callback=callback)
     model.round_to_storage()
     return history

@@ -3,9 +3,9 @@
 Encoding. Positions are normalised by the domain's longer side (``base.normalise``), so the domain
 becomes ``[0, w] × [0, h]`` with ``max(w, h) = 1``. Level ``l`` of ``L`` has resolution
 ``R_l = floor(N_min · b^l)`` with growth ``b = exp((ln N_max − ln N_min) / (L − 1))``: a grid of
-``(ceil(R_l w) + 1) × (ceil(R_l h) + 1)`` nodes. A level whose node count fits the table size ``T`` is
-indexed densely (``i + j · n_x``, table of exactly that many rows); a finer one through InstantNGP's
-spatial hash ``((i · 1) xor (j · 2654435761 mod 2³²)) mod T`` into a table of ``T`` rows. Each row holds
+``(ceil(R_l w) + 1) × (ceil(R_l h) + 1)`` nodes. A level whose node count fits the table size ``T``, and each
+of the first ``dense_levels`` levels whatever its size, is indexed densely (``i + j · n_x``, table of exactly that
+many rows); a finer one through InstantNGP's spatial hash ``((i · 1) xor (j · 2654435761 mod 2³²)) mod T`` into a table of ``T`` rows. Each row holds
 ``F`` features; the query bilinearly interpolates the four surrounding nodes of every level, and the
 concatenated ``L · F`` features go through a ``hidden × layers`` ReLU MLP with a linear output.
 InstantNGP uses ``T = 2^k``; here any integer ``T`` is allowed so that ``for_budget`` can meet a byte
@@ -42,10 +42,11 @@ MLP_SHARE = 0.5
 
 
 def level_layout(levels: int, base_resolution: int, finest_resolution: int, extent: tuple[float, float],
-                 table_size: int) -> dict[str, np.ndarray]:
+                 table_size: int, dense_levels: int = 0) -> dict[str, np.ndarray]:
     """Per-level resolution, node counts, table rows and row offsets.
 
     extent : (w, h) of the normalised domain (max = 1)
+    dense_levels : the first this many levels are dense even when their nodes outnumber ``table_size``
     returns dict of (L,) int64 arrays: ``res``, ``nx``, ``ny``, ``rows``, ``offset``, and (L,) bool ``hashed``
     """
     if levels > 1:
@@ -55,7 +56,7 @@ def level_layout(levels: int, base_resolution: int, finest_resolution: int, exte
     res = np.floor(base_resolution * growth ** np.arange(levels) + ROUND_SLACK).astype(np.int64)
     nx = np.ceil(res * extent[0] - ROUND_SLACK).astype(np.int64) + 1
     ny = np.ceil(res * extent[1] - ROUND_SLACK).astype(np.int64) + 1
-    hashed = nx * ny > table_size
+    hashed = (nx * ny > table_size) & (np.arange(levels) >= dense_levels)
     rows = np.where(hashed, table_size, nx * ny)
     offset = np.concatenate([[0], np.cumsum(rows)[:-1]])
     return {"res": res, "nx": nx, "ny": ny, "rows": rows, "offset": offset, "hashed": hashed}
@@ -79,6 +80,7 @@ class HashGrid(Baseline):
     domain : (x0, y0, x1, y1); channels : output channel names
     levels, features : L and F (InstantNGP: 16, 2)
     table_size : T, rows per hashed level
+    dense_levels : the first this many levels are stored densely whatever their size (``level_layout``)
     base_resolution, finest_resolution : N_min and N_max, cells per longer domain side
     hidden, layers : the ReLU MLP (InstantNGP: 64, 2)
     value_scale : the output unit (``Baseline``)
@@ -89,12 +91,14 @@ class HashGrid(Baseline):
 
     def __init__(self, domain, channels, *, levels: int = 16, features: int = 2, table_size: int = 1 << 14,
                  base_resolution: int = 16, finest_resolution: int = 512, hidden: int = 64, layers: int = 2,
-                 value_scale: float = 1.0, seed: int = 0, device: str = "cpu"):
+                 dense_levels: int = 0, value_scale: float = 1.0, seed: int = 0, device: str = "cpu"):
         super().__init__(domain, channels, value_scale)
         for key, v in (("levels", levels), ("features", features), ("table_size", table_size),
                        ("base_resolution", base_resolution), ("finest_resolution", finest_resolution)):
             if not isinstance(v, (int, np.integer)) or v < 1:
                 raise ValueError(f"{key} must be a positive integer, got {v!r}")
+        if not isinstance(dense_levels, (int, np.integer)) or not 0 <= dense_levels <= levels:
+            raise ValueError(f"dense_levels must be an integer in [0, levels={levels}], got {dense_levels!r}")
         if finest_resolution < base_resolution:
             raise ValueError(f"finest_resolution {finest_resolution} < base_resolution {base_resolution}")
         x0, y0, x1, y1 = self.domain
@@ -102,7 +106,9 @@ class HashGrid(Baseline):
         self.extent = ((x1 - x0) / side, (y1 - y0) / side)
         self.levels, self.features, self.table_size = int(levels), int(features), int(table_size)
         self.base_resolution, self.finest_resolution = int(base_resolution), int(finest_resolution)
-        layout = level_layout(self.levels, self.base_resolution, self.finest_resolution, self.extent, self.table_size)
+        self.dense_levels = int(dense_levels)
+        layout = level_layout(self.levels, self.base_resolution, self.finest_resolution, self.extent, self.table_size,
+                              self.dense_levels)
         self.first_hashed = int(np.argmax(layout["hashed"])) if layout["hashed"].any() else self.levels
         for key in ("res", "nx", "offset"):
             self.register_buffer(key, torch.from_numpy(layout[key]), persistent=False)
@@ -118,7 +124,8 @@ class HashGrid(Baseline):
     @classmethod
     def for_budget(cls, n_bytes: int, domain, channels, *, image: np.ndarray | None = None, seed: int = 0,
                    device: str = "cpu", levels: int = 16, features: int = 2, base_resolution: int = 16,
-                   finest_resolution: int | None = None, hidden: int = 64, layers: int = 2) -> HashGrid:
+                   finest_resolution: int | None = None, hidden: int = 64, layers: int = 2,
+                   dense_levels: int = 0) -> HashGrid:
         """Largest table size ``T`` whose stored bytes stay ≤ ``n_bytes``.
 
         The MLP keeps width ``hidden`` unless that would take more than ``MLP_SHARE`` of the budget; then
@@ -140,10 +147,11 @@ class HashGrid(Baseline):
         extent = ((x1 - x0) / side, (y1 - y0) / side)
 
         def rows(t: int) -> int:
-            return int(level_layout(levels, base_resolution, finest_resolution, extent, t)["rows"].sum())
+            return int(level_layout(levels, base_resolution, finest_resolution, extent, t, dense_levels)["rows"].sum())
 
         if spare < rows(1):
-            raise ValueError(f"a budget of {n_bytes} bytes cannot hold a {levels}-level hash grid and its MLP")
+            raise ValueError(f"a budget of {n_bytes} bytes cannot hold a {levels}-level hash grid"
+                             + (f" with {dense_levels} dense levels" if dense_levels else "") + " and its MLP")
         nodes = level_layout(levels, base_resolution, finest_resolution, extent, 1)
         lo, hi = 1, int((nodes["nx"] * nodes["ny"]).max())  # beyond hi every level is dense
         while lo < hi:  # largest t with rows(t) ≤ spare (rows is non-decreasing in t)
@@ -151,7 +159,7 @@ class HashGrid(Baseline):
             lo, hi = (mid, hi) if rows(mid) <= spare else (lo, mid - 1)
         return cls(domain, channels, levels=levels, features=features, table_size=lo,
                    base_resolution=base_resolution, finest_resolution=finest_resolution, hidden=hidden,
-                   layers=layers, seed=seed, device=device)
+                   layers=layers, dense_levels=dense_levels, seed=seed, device=device)
 
     def init_mean(self, mean: Tensor) -> None:
         """Start the output at a constant (C,) value (the data's mean): the MLP's output bias."""
@@ -160,8 +168,11 @@ class HashGrid(Baseline):
 
     def describe(self) -> dict:
         return {"class": type(self).__name__, "levels": self.levels, "features": self.features,
-                "table_size": self.table_size, "finest_resolution": self.finest_resolution,
-                "hidden": self.decoder.hidden, "layers": self.decoder.layers, "value_scale": self.value_scale}
+                "table_size": self.table_size, "base_resolution": self.base_resolution,
+                "finest_resolution": self.finest_resolution, "dense_levels": self.first_hashed,
+                "hidden": self.decoder.hidden, "layers": self.decoder.layers,
+                "mlp_bytes": FP16_BYTES * sum(p.numel() for p in self.decoder.parameters()),
+                "value_scale": self.value_scale}
 
     def corners(self, xy: Tensor) -> tuple[Tensor, Tensor]:
         """Rows (N, L, 4) int64 into ``table`` and bilinear weights (N, L, 4) float32 of positions xy (N, 2).

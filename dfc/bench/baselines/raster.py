@@ -1,10 +1,11 @@
 """The plain raster at equal bytes: the input image, area-averaged down to the largest size whose
-losslessly compressed file fits the budget, evaluated anywhere by bicubic interpolation.
+losslessly compressed file fits the budget, evaluated anywhere by bicubic interpolation (or Lanczos,
+``dfc.bench.baselines.upsample``).
 
 Storage: the byte size of a half-float, ZIP-compressed scanline OpenEXR file of the downsampled image,
-header included, as ``dfc.io.image.write_exr`` writes it. Evaluation uses the half-float values (what the
-file decodes to) and ``grid_sample(mode="bicubic", align_corners=False, padding_mode="border")``, so
-pixel (i, j) of the ``w × h`` raster is centred at ``x0 + (i + 0.5)(x1 − x0) / w`` (spec/conventions.md).
+header included, as ``dfc.io.image.write_exr`` writes it: lossless, apart from the rounding to half floats.
+Evaluation uses the half-float values (what the file decodes to); pixel (i, j) of the ``w × h`` raster is centred
+at ``x0 + (i + 0.5)(x1 − x0) / w`` (spec/conventions.md).
 """
 
 from __future__ import annotations
@@ -14,12 +15,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-import torch
-import torch.nn.functional as nnf
-from torch import Tensor
 
-from .base import Baseline
-from .relu_field import grid_coords
+from .upsample import PixelImage
 
 __all__ = ["REFINE", "Raster", "area_resize", "exr_bytes"]
 
@@ -54,7 +51,7 @@ def exr_bytes(pixels: np.ndarray, channels: list[str]) -> int:
         return path.stat().st_size
 
 
-class Raster(Baseline):
+class Raster(PixelImage):
     """Bicubic-interpolated raster ``xy (N, 2) domain units -> (N, C) float32``; no trainable parameters.
 
     Parameters
@@ -68,18 +65,12 @@ class Raster(Baseline):
     name = "raster"
 
     def __init__(self, pixels: np.ndarray, domain, channels, *, n_bytes: int | None = None, device: str = "cpu"):
-        super().__init__(domain, channels)
         pixels = np.asarray(pixels, dtype=np.float32)
-        if pixels.ndim != 3 or pixels.shape[2] != len(self.channels):
-            raise ValueError(f"pixels must be (h, w, {len(self.channels)}), got {pixels.shape}")
-        self.n_bytes = exr_bytes(pixels, self.channels) if n_bytes is None else int(n_bytes)
-        stored = torch.from_numpy(pixels.astype(np.float16).astype(np.float32))
-        self.register_buffer("image", stored.permute(2, 0, 1)[None].contiguous().to(device))
-
-    @property
-    def size(self) -> tuple[int, int]:
-        """(width, height) of the stored raster."""
-        return int(self.image.shape[3]), int(self.image.shape[2])
+        if pixels.ndim != 3 or pixels.shape[2] != len(channels):
+            raise ValueError(f"pixels must be (h, w, {len(channels)}), got {pixels.shape}")
+        n_bytes = exr_bytes(pixels, list(channels)) if n_bytes is None else int(n_bytes)
+        super().__init__(pixels.astype(np.float16).astype(np.float32), domain, channels, n_bytes=n_bytes,
+                         kernel="bicubic", device=device)
 
     @classmethod
     def for_budget(cls, n_bytes: int, domain, channels, *, image: np.ndarray | None = None, seed: int = 0,
@@ -121,12 +112,6 @@ class Raster(Baseline):
         pixels = image if (w, h) == (W, H) else area_resize(image, w, h)
         return cls(pixels, domain, channels, n_bytes=sizes[(w, h)], device=device)
 
-    def stored_bytes(self) -> int:
-        return self.n_bytes
-
     def describe(self) -> dict:
-        return {"class": type(self).__name__, "raster": list(self.size)}
-
-    def forward(self, xy: Tensor) -> Tensor:
-        return nnf.grid_sample(self.image, grid_coords(xy, self.domain), mode="bicubic", padding_mode="border",
-                               align_corners=False)[0, :, 0].T
+        return {"class": type(self).__name__, "raster": list(self.size), "storage": "half-float ZIP EXR",
+                "lossless": True}

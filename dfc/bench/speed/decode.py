@@ -4,12 +4,13 @@ huge EXR decode (target ≤ 1 GB).
 Times, best of ``--repeat``: rendering a ``--size`` raster of the whole domain (location, interpolation and
 MLP, in the renderer's row blocks), the decoder MLP alone on the same points' precomputed features, and a
 full ``dfc decode`` to EXR. Then runs ``dfc decode --size BIG`` in a child process and reports its peak
-resident memory (``VmHWM``, sampled every 0.1 s; Linux) and time. Without FILE the shipped sample is encoded first (``--steps``).
+resident memory (``VmHWM``, sampled every 0.1 s; Linux) and time. Without FILE the shipped sample is encoded first
+(``--steps``). The timings are taken for each ``--threads`` count, alone and beside a busy neighbour
+(``dfc.bench.neighbour``).
 """
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import tempfile
@@ -20,26 +21,10 @@ import click
 import numpy as np
 import torch
 
-from ...io.atomic import write_bytes_atomic
-from ..timing import best_seconds
-
-
-def _peak_rss_mb(cmd: list[str]) -> float:
-    """Run ``cmd`` and return its peak resident memory in MB, polling ``VmHWM`` in /proc (Linux). (A child's
-    ``ru_maxrss`` would also count the memory of this process, which it starts as a copy of.)"""
-    proc = subprocess.Popen(cmd)
-    status, peak = Path(f"/proc/{proc.pid}/status"), 0.0
-    while proc.poll() is None:
-        try:
-            for line in status.read_text().splitlines():
-                if line.startswith("VmHWM:"):
-                    peak = max(peak, int(line.split()[1]) / 1024.0)
-        except OSError:
-            pass
-        time.sleep(0.1)
-    if proc.returncode:
-        raise click.ClickException(f"{' '.join(cmd)} failed with exit status {proc.returncode}")
-    return peak
+from ...cli.options import json_option, quiet_option, stdout_taken, write_json
+from ..neighbour import SAMPLES
+from ..timing import best_seconds, run_measured
+from .field import NEIGHBOUR_OPTION, THREADS_OPTION, conditions
 
 
 @click.command()
@@ -50,51 +35,66 @@ def _peak_rss_mb(cmd: list[str]) -> float:
 @click.option("--steps", type=click.IntRange(1), default=300, show_default=True,
               help="Fit steps when encoding the shipped sample (no FILE).")
 @click.option("--repeat", type=click.IntRange(1), default=3, show_default=True, help="Runs per timing (best kept).")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
-def command(dfield, size, big, steps, repeat, json_path):
-    """Time decoding DFIELD (default: the shipped sample, encoded now) against its bare MLP; measure the peak
-    memory of a --big x --big EXR decode."""
+@click.option("--device", default="cpu", show_default=True, help="torch device of the decodes (cpu, cuda, ...).")
+@THREADS_OPTION
+@NEIGHBOUR_OPTION
+@json_option
+@quiet_option
+def command(dfield, size, big, steps, repeat, device, thread_counts, neighbour, json_path, quiet):
+    """Time decoding DFIELD (default: the shipped sample, encoded now) against its bare MLP, and the whole dfc decode
+    process, for each --threads count alone and beside a busy neighbour, with seconds per megapixel (the figure a
+    GPU run reports with --device cuda); measure the peak memory of a --big x --big EXR decode (with the first
+    thread count, alone)."""
     from ...codec import EncodeSettings, encode_image, load
     from ...geometry.sources import read_any
     from ...io.image import read_image
     from ...render import render
 
+    err = stdout_taken(json_path)
+    figures = {"size": size, "points": size * size, "device": device, "runs": []}
     with tempfile.TemporaryDirectory() as tmp:
         if dfield is None:
-            samples = Path(__file__).resolve().parents[2] / "samples"
-            image = read_image(samples / "sample.exr")
-            blob, _ = encode_image(image, read_any(samples / "sample.json"), EncodeSettings(steps=steps))
+            image = read_image(SAMPLES / "sample.exr")
+            blob, _ = encode_image(image, read_any(SAMPLES / "sample.json"), EncodeSettings(steps=steps))
             dfield = Path(tmp) / "sample.dfield"
             dfield.write_bytes(blob)
-        model = load(dfield)
+        dev = torch.device(device)
+        model = load(dfield, device=device)
         x0, y0, x1, y1 = model.field.mesh.domain
         u = (np.arange(size) + 0.5) / size
         X, Y = np.meshgrid(x0 + u * (x1 - x0), y0 + u * (y1 - y0))
-        xy = torch.from_numpy(np.stack([X.ravel(), Y.ravel()], axis=1))
+        xy = torch.from_numpy(np.stack([X.ravel(), Y.ravel()], axis=1)).to(dev)
         with torch.no_grad():
             features = model.features(xy).float()
-        cpu = torch.device("cpu")
-        with torch.no_grad():
-            t_render = best_seconds(lambda: render(model, size, size), repeat, cpu)
-            t_mlp = best_seconds(lambda: model.decoder(features), repeat, cpu)
         out = Path(tmp) / "out.exr"
-        cmd = [sys.executable, "-m", "dfc", "decode", str(dfield), "-o", str(out), "-q"]
-        clock = time.perf_counter()
-        subprocess.run(cmd + ["--size", f"{size}x{size}"], check=True)
-        t_cli = time.perf_counter() - clock
-        figures = {"size": size, "points": size * size, "render_s": t_render, "mlp_s": t_mlp,
-                   "ratio": t_render / t_mlp, "cli_decode_s": t_cli, "threads": torch.get_num_threads()}
-        if big:
+        cmd = [sys.executable, "-m", "dfc", "decode", str(dfield), "-o", str(out), "-q", "--device", device]
+        click.echo(f"{size}x{size} render of {dfield} on {device}", err=err)
+        click.echo(f"{'threads':>7} {'neighbour':>9} {'render':>10} {'bare MLP':>10} {'ratio':>6} {'s/MP':>7} "
+                   f"{'dfc decode process':>19}", err=err)
+        for threads, beside in conditions(thread_counts, neighbour):
+            with torch.no_grad():
+                t_render = best_seconds(lambda: render(model, size, size), repeat, dev)
+                t_mlp = best_seconds(lambda: model.decoder(features), repeat, dev)
             clock = time.perf_counter()
-            peak = _peak_rss_mb(cmd + ["--size", f"{big}x{big}"])
-            figures.update(big=big, big_decode_s=time.perf_counter() - clock, big_peak_rss_mb=peak,
-                           big_file_mb=out.stat().st_size / 2**20)
-    click.echo(f"render {size}x{size} (location + interpolation + MLP): {1e3 * t_render:9.1f} ms")
-    click.echo(f"bare MLP on the same {size * size} features:        {1e3 * t_mlp:9.1f} ms")
-    click.echo(f"ratio (target <= 1.5):                             {figures['ratio']:9.3f}")
-    click.echo(f"dfc decode to EXR, whole process:                  {1e3 * t_cli:9.1f} ms")
-    if big:
-        click.echo(f"dfc decode {big}x{big} EXR: {figures['big_decode_s']:.1f} s, peak memory "
-                   f"{figures['big_peak_rss_mb']:.0f} MB (target <= 1024), file {figures['big_file_mb']:.0f} MB")
+            subprocess.run(cmd + ["--size", f"{size}x{size}", "--threads", str(threads)], check=True,
+                           stdout=subprocess.DEVNULL)
+            t_cli = time.perf_counter() - clock
+            per_mp = t_render / (size * size / 1e6)
+            figures["runs"].append({"threads": threads, "neighbour": beside, "render_s": t_render, "mlp_s": t_mlp,
+                                    "ratio": t_render / t_mlp, "s_per_megapixel": per_mp, "cli_decode_s": t_cli})
+            click.echo(f"{threads:>7} {beside:>9} {1e3 * t_render:>7.1f} ms {1e3 * t_mlp:>7.1f} ms "
+                       f"{t_render / t_mlp:>6.3f} {per_mp:>7.4f} {1e3 * t_cli:>16.1f} ms", err=err)
+        click.echo("ratio: render over the bare MLP on the same points (target <= 1.5); s/MP: seconds per megapixel "
+                   "rendered; neighbour busy: another dfc encode with as many threads", err=err)
+        if big:
+            try:
+                peak = run_measured(cmd + ["--size", f"{big}x{big}", "--threads", str(thread_counts[0])], quiet=True)
+            except RuntimeError as e:
+                raise click.ClickException(str(e)) from None
+            figures.update(big=big, big_threads=thread_counts[0], big_decode_s=peak.seconds,
+                           big_peak_rss_mb=peak.hwm, big_file_mb=out.stat().st_size / 2**20)
+            click.echo(f"dfc decode {big}x{big} EXR ({thread_counts[0]} threads): {figures['big_decode_s']:.1f} s, "
+                       f"peak memory {figures['big_peak_rss_mb']:.0f} MB (target <= 1024), file "
+                       f"{figures['big_file_mb']:.0f} MB", err=err)
     if json_path:
-        write_bytes_atomic(json_path, (json.dumps(figures, indent=2) + "\n").encode())
+        write_json(json_path, figures)

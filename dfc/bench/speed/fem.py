@@ -4,28 +4,44 @@ The paper's Fig. 14. ``SOLUTION`` is any triangle mesh with point data (``dfc en
 output of ``samples/make_helmholtz.py``). The benchmark encodes it with dfc (``dfc.codec.encode_fem``) and prints
 
 - the bytes of the solution file against the ``.dfield``, and the PSNR of the decoded file against the FEM nodal
-  values (``EncodeReport.psnr``);
+  values (``EncodeReport.psnr``: points the fit was trained on) and, held out, against the finite element interpolant
+  at the centroids of up to ``--interior-points`` elements (``interior_points``: points the fit never saw), for dfc
+  and for a hash grid stored in the same bytes (``HashGrid.for_budget``, trained on the same samples for
+  ``--hash-steps`` steps, by default as many as dfc's);
 - the leakage check: at points ``--offset`` × the domain's longer side away from every barrier segment, on both
   sides (the middle 90 % of each segment, away from its ends), the mean and max absolute error against the FEM
-  solution on that side, of dfc and of a hash grid stored in the same bytes (``HashGrid.for_budget``, trained on
-  the same samples for ``--hash-steps`` steps), next to the mean jump of the FEM solution across the barrier.
+  solution on that side, of dfc and of the hash grid, next to the mean jump of the FEM solution across the barrier.
 
 A codec that leaks blends the two sides near the barrier: its error there approaches half the jump.
 """
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import click
 import numpy as np
 
+from ...cli.options import quiet_option, stdout_taken, write_json
 from ...io.atomic import write_bytes_atomic
 
 SIDE_POINTS = 200
 """Points per barrier segment and side in the leakage check."""
+INTERIOR_POINTS = 100_000
+"""Default number of element centroids in the held-out PSNR."""
+
+
+def interior_points(solution, count: int = INTERIOR_POINTS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Held-out points of a FEM solution: the centroids of ``count`` elements evenly spread over the element list
+    (all when there are fewer). Returns xy (N, 2) float64, element (N,) int64 and barycentric (N, 3) float64.
+    Training samples (``dfc.physics.fem.sample_fem``) are the nodes and uniformly random points, so a centroid is
+    one with probability zero."""
+    n = len(solution.triangles)
+    tri = np.unique(np.linspace(0, n - 1, min(n, count)).round().astype(np.int64))
+    bary = np.full((len(tri), 3), 1.0 / 3.0)
+    xy = solution.points[solution.triangles[tri]].mean(axis=1)
+    return xy, tri, bary
 
 
 def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tuple[np.ndarray, np.ndarray]:
@@ -49,17 +65,22 @@ def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tu
 @click.option("--max-triangles", type=click.IntRange(min=2), default=8000, show_default=True,
               help="dfc mesh size.")
 @click.option("--steps", type=click.IntRange(min=1), default=1000, show_default=True, help="dfc fit steps.")
-@click.option("--hash-steps", type=click.IntRange(min=1), default=300, show_default=True,
-              help="Hash-grid training steps (slow on a CPU).")
+@click.option("--hash-steps", type=click.IntRange(min=1), default=None,
+              help="Hash-grid training steps  [default: --steps, as many as dfc's].")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True)
 @click.option("--offset", type=click.FloatRange(min=0, min_open=True), default=1e-3, show_default=True,
               help="Distance of the check points from the barrier, as a fraction of the domain's longer side.")
+@click.option("--interior-points", "n_interior", type=click.IntRange(min=1), default=INTERIOR_POINTS, show_default=True,
+              help="Element centroids in the held-out PSNR against the finite element interpolant.")
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also keep the .dfield here.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Also write the figures to this JSON file (- for standard output; the text then goes to "
+                   "standard error).")
+@quiet_option
 def command(solution_path, curves_path, fields, fem_sampling, max_triangles, steps, hash_steps, batch_size, offset,
-            threads, seed, output, json_path):
+            n_interior, threads, seed, output, json_path, quiet):
     """Bytes, PSNR and leakage across the barriers of dfc and an equal-size hash grid on a FEM solution."""
     import torch
 
@@ -67,30 +88,38 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     from ...geometry.curves import read_curves
     from ...io.fem import read_fem
     from ...metrics import psnr
-    from ...physics.fem import barrier_segments, evaluate_fem, fem_curves, node_points, sample_fem
+    from ...physics.fem import barrier_segments, evaluate_fem, fem_curves, interpolate, node_points, sample_fem
     from ...train.samplers import point_sampler
     from ..baselines import fit_baseline
     from ..baselines.hashgrid import HashGrid
 
+    text_err = stdout_taken(json_path)
     if threads is not None:
         torch.set_num_threads(threads)
     solution = read_fem(solution_path, fields.split(",") if fields else None)
     curves = fem_curves(solution, read_curves(curves_path))
     in_bytes = Path(solution_path).stat().st_size
     click.echo(f"{solution_path}: {in_bytes} bytes, {len(solution.points)} nodes, {len(solution.triangles)} "
-               f"triangles, channels {', '.join(solution.channels)}")
+               f"triangles, channels {', '.join(solution.channels)}", err=text_err)
     settings = EncodeSettings(max_triangles=max_triangles, steps=steps, batch_size=batch_size, seed=seed)
     clock = time.perf_counter()
     every = max(1, steps // 10)
     blob, report = encode_fem(solution, curves, settings, sampling=fem_sampling, callback=lambda s, loss, p: (
-        click.echo(f"  dfc step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True) if (s + 1) % every == 0 else None))
+        click.echo(f"  dfc step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True)
+        if not quiet and (s + 1) % every == 0 else None))
     dfc_s = time.perf_counter() - clock
     if output:
         write_bytes_atomic(output, blob)
     model = loads(blob)
+    held_xy, held_tri, held_bary = interior_points(solution, n_interior)
+    held_truth = interpolate(solution, held_tri, held_bary, held_xy, curves, fem_sampling)
+    with torch.no_grad():
+        dfc_held = psnr(held_truth, model(torch.from_numpy(held_xy)).numpy(), data_range=report.data_range)
     click.echo(f"dfc: {len(blob)} bytes ({in_bytes / len(blob):.1f}x smaller), PSNR {report.psnr:.2f} dB against the "
-               f"nodal values (data range {report.data_range:.4g}), {report.n_triangles} triangles, {dfc_s:.0f} s")
+               f"nodal values (data range {report.data_range:.4g}), {dfc_held:.2f} dB held out at {len(held_xy)} "
+               f"element centroids; {report.n_triangles} triangles, {dfc_s:.0f} s", err=text_err)
 
+    hash_steps = hash_steps or steps
     clock = time.perf_counter()
     xy, values = sample_fem(solution, curves, mode=fem_sampling, seed=seed)
     extent = max(curves.domain[2] - curves.domain[0], curves.domain[3] - curves.domain[1])
@@ -100,14 +129,15 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     every = max(1, hash_steps // 10)
     fit_baseline(grid, point_sampler(xy, values, batch_size), hash_steps, seed=seed, callback=lambda s, loss, p: (
         click.echo(f"  hash grid step {s + 1}/{hash_steps}, batch PSNR {p:.2f} dB", err=True)
-        if (s + 1) % every == 0 else None))
+        if not quiet and (s + 1) % every == 0 else None))
     hash_s = time.perf_counter() - clock
     nodes = np.unique(solution.triangles)
     node_xy = torch.from_numpy(node_points(solution)[0])
     with torch.no_grad():
         grid_psnr = psnr(solution.values[nodes], grid(node_xy).numpy(), data_range=report.data_range)
+        grid_held = psnr(held_truth, grid(torch.from_numpy(held_xy)).numpy(), data_range=report.data_range)
     click.echo(f"hash grid: {grid.stored_bytes()} bytes, PSNR {grid_psnr:.2f} dB against the nodal values, "
-               f"{hash_steps} steps, {hash_s:.0f} s")
+               f"{grid_held:.2f} dB held out; {hash_steps} steps, {hash_s:.0f} s", err=text_err)
 
     left, right = side_points(barrier_segments(curves), offset * extent)
     sides = (("left", left), ("right", right))
@@ -115,7 +145,7 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     jump = float(np.abs(truth["left"] - truth["right"]).mean())
     leak: dict = {"offset": offset * extent, "points_per_side": len(left), "mean_jump": jump}
     click.echo(f"leakage at {offset * extent:.3g} from the barrier ({len(left)} points per side), mean |jump| of the "
-               f"FEM solution across it {jump:.4g}; absolute error (mean / max):")
+               f"FEM solution across it {jump:.4g}; absolute error (mean / max):", err=text_err)
     for name, m in (("dfc", model), ("hash grid", grid)):
         row = {}
         with torch.no_grad():
@@ -124,11 +154,12 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
                 row[side] = {"mean": float(err.mean()), "max": float(err.max())}
         leak[name] = row
         click.echo(f"  {name:<10} left {row['left']['mean']:.4g} / {row['left']['max']:.4g}   "
-                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}")
+                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}", err=text_err)
     if json_path:
         figures = {"solution": str(solution_path), "solution_bytes": in_bytes, "nodes": len(solution.points),
                    "fem_triangles": len(solution.triangles), "dfield_bytes": len(blob), "ratio": in_bytes / len(blob),
-                   "dfc_psnr": report.psnr, "data_range": report.data_range, "dfc_triangles": report.n_triangles,
+                   "dfc_psnr": report.psnr, "dfc_psnr_held_out": dfc_held, "held_out_points": len(held_xy),
+                   "data_range": report.data_range, "dfc_triangles": report.n_triangles,
                    "dfc_steps": steps, "dfc_s": dfc_s, "hash_bytes": grid.stored_bytes(), "hash_psnr": grid_psnr,
-                   "hash_steps": hash_steps, "hash_s": hash_s, "leakage": leak}
-        write_bytes_atomic(json_path, (json.dumps(figures, indent=2) + "\n").encode())
+                   "hash_psnr_held_out": grid_held, "hash_steps": hash_steps, "hash_s": hash_s, "leakage": leak}
+        write_json(json_path, figures)

@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import json
 import time
 
 import click
 import numpy as np
 
+from ...cli.options import quiet_option, stdout_taken, write_json
 from ...geometry.curves import Curves
-from ...io.atomic import write_bytes_atomic
 
 
 def random_cubics(n: int, seed: int = 0) -> Curves:
@@ -33,12 +32,15 @@ def random_cubics(n: int, seed: int = 0) -> Curves:
 @click.option("--triangles", "n_triangles", type=click.IntRange(100), default=200_000, show_default=True,
               help="Triangle count to aim at; sets max_area = 1.3 × domain area / triangles.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed of the curves.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
-              help="Also write the figures to this JSON file.")
-def command(n_curves: int, n_triangles: int, seed: int, json_path: str | None) -> None:
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Also write the figures to this JSON file (- for standard output; the text then goes to "
+                   "standard error).")
+@quiet_option
+def command(n_curves: int, n_triangles: int, seed: int, json_path: str | None, quiet: bool) -> None:
     """Time clean-up, conflict loop, density and CDT on random crossing cubics."""
     from ...geometry.triangulate import triangulate
 
+    text_err = stdout_taken(json_path)
     curves = random_cubics(n_curves, seed)
     stats: dict = {}
     clock = time.perf_counter()
@@ -50,9 +52,9 @@ def command(n_curves: int, n_triangles: int, seed: int, json_path: str | None) -
     stats["curved_triangles"] = len(mesh.curved_triangles)
     stats["disc_edges"] = len(mesh.disc_edges)
     for key in ("clean_s", "conflict_s", "density_s", "cdt_s", "total_s", "validate_s"):
-        click.echo(f"{key[:-2]:>18}: {stats[key]:8.3f} s")
+        click.echo(f"{key[:-2]:>18}: {stats[key]:8.3f} s", err=text_err)
     for key in ("pieces_in", "pieces_clean", "pieces_final", "apexes", "steiner", "vertices", "triangles",
                 "curved_triangles", "disc_edges"):
-        click.echo(f"{key:>18}: {stats[key]:8d}")
+        click.echo(f"{key:>18}: {stats[key]:8d}", err=text_err)
     if json_path:
-        write_bytes_atomic(json_path, json.dumps(stats, indent=2).encode())
+        write_json(json_path, stats)

@@ -14,7 +14,7 @@ raster, as ``samples/sample.exr`` is made) and encoded with ``dfc.codec.encode_i
 - **smooth-region PSNR** at 33× in windows centred on the points farthest from every curve.
 
 Windows are rendered ``WINDOW`` pixels on their longer side with ``WINDOW_SPP`` points per pixel for the file and
-the exact scene alike. PSNR uses ``dfc.metrics.data_range`` of the raster.
+the exact scene alike. Every PSNR is on ``dfc.metrics.quality_scale`` of the raster (tone-mapped for HDR scenes).
 """
 
 from __future__ import annotations
@@ -75,8 +75,7 @@ def rate_probes(curves, n_smooth: int = SMOOTH_PROBES) -> tuple[np.ndarray, np.n
     return edge, np.array(tips, dtype=np.float64).reshape(-1, 2), np.array(chosen)
 
 
-def _window_psnr(model, scene, centre, zoom, data_range) -> float:
-    from ...metrics import psnr
+def _window_psnr(model, scene, centre, zoom, scale) -> float:
     from ...render import values_at, window_points, window_shape, zoom_window
 
     window = zoom_window(scene.domain, centre, zoom)
@@ -84,19 +83,19 @@ def _window_psnr(model, scene, centre, zoom, data_range) -> float:
     xy = window_points(window, w, h, WINDOW_SPP)
     got = values_at(model, xy).reshape(h, w, WINDOW_SPP, -1).mean(axis=2)
     ref = np.asarray(scene.value(xy), np.float64).reshape(h, w, WINDOW_SPP, -1).mean(axis=2)
-    return psnr(ref, got, data_range=data_range)
+    return scale.psnr(ref, got)
 
 
 def measure(scene, blob: bytes, pixels: np.ndarray) -> dict:
     """The measurements of the module docstring for the ``.dfield`` bytes ``blob`` fitted to ``pixels``."""
     from ...codec import loads
     from ...geometry.pixels import edge_pixels
-    from ...metrics import data_range, psnr
+    from ...metrics import quality_scale
     from ...render import default_edge_spp, render
 
     model = loads(blob)
     h, w = pixels.shape[:2]
-    peak = data_range(pixels)
+    scale = quality_scale(pixels)
     spp = default_edge_spp(model, w, h)
     centres = render(model, w, h)
     boxed = render(model, w, h, edge_spp=spp)
@@ -104,16 +103,16 @@ def measure(scene, blob: bytes, pixels: np.ndarray) -> dict:
     edge, tips, smooth = rate_probes(scene.curves)
     out = {
         "bytes": len(blob),
-        "psnr_1x": psnr(pixels, boxed, data_range=peak),
+        "psnr_1x": scale.psnr(pixels, boxed),
         "edge_spp": spp,
-        "psnr_1x_centres": psnr(pixels, centres, data_range=peak),
-        "psnr_1x_unmixed": psnr(pixels[~mixed], centres[~mixed], data_range=peak),
+        "psnr_1x_centres": scale.psnr(pixels, centres),
+        "psnr_1x_unmixed": scale.psnr(pixels[~mixed], centres[~mixed]),
     }
     for z in EDGE_ZOOMS:
-        out[f"edge_{z}x"] = float(np.mean([_window_psnr(model, scene, p, z, peak) for p in edge]))
+        out[f"edge_{z}x"] = float(np.mean([_window_psnr(model, scene, p, z, scale) for p in edge]))
         if len(tips):
-            out[f"tip_{z}x"] = float(np.mean([_window_psnr(model, scene, p, z, peak) for p in tips]))
-    out[f"smooth_{SMOOTH_ZOOM}x"] = float(np.mean([_window_psnr(model, scene, p, SMOOTH_ZOOM, peak) for p in smooth]))
+            out[f"tip_{z}x"] = float(np.mean([_window_psnr(model, scene, p, z, scale) for p in tips]))
+    out[f"smooth_{SMOOTH_ZOOM}x"] = float(np.mean([_window_psnr(model, scene, p, SMOOTH_ZOOM, scale) for p in smooth]))
     return out
 
 

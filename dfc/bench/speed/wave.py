@@ -7,12 +7,12 @@ against the ``.dfield``, the PSNR over all frames and the worst frame's, each de
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import click
 
+from ...cli.options import quiet_option, stdout_taken, write_json
 from ...io.atomic import write_bytes_atomic
 
 
@@ -27,8 +27,12 @@ from ...io.atomic import write_bytes_atomic
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also keep the .dfield here.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the figures to this JSON file.")
-def command(sequence_path, curves_path, max_triangles, steps, batch_size, dim, threads, seed, output, json_path):
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Also write the figures to this JSON file (- for standard output; the text then goes to "
+                   "standard error).")
+@quiet_option
+def command(sequence_path, curves_path, max_triangles, steps, batch_size, dim, threads, seed, output, json_path,
+            quiet):
     """Bytes and PSNR of a frame sequence encoded as one time-sliced dfc file."""
     import torch
 
@@ -38,18 +42,20 @@ def command(sequence_path, curves_path, max_triangles, steps, batch_size, dim, t
     from ...metrics import psnr
     from ...render import render
 
+    text_err = stdout_taken(json_path)
     if threads is not None:
         torch.set_num_threads(threads)
     seq = read_frames(sequence_path)
     t, h, w, c = seq.frames.shape
     in_bytes = Path(sequence_path).stat().st_size
     click.echo(f"{sequence_path}: {in_bytes} bytes, {t} frames of {w}x{h}x{c}, t = {seq.times[0]:g} .. "
-               f"{seq.times[-1]:g}")
+               f"{seq.times[-1]:g}", err=text_err)
     settings = EncodeSettings(max_triangles=max_triangles, steps=steps, batch_size=batch_size, dim=dim, seed=seed)
     every = max(1, steps // 10)
     clock = time.perf_counter()
     blob, report = encode_frames(seq, read_curves(curves_path), settings, callback=lambda s, loss, p: (
-        click.echo(f"  step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True) if (s + 1) % every == 0 else None))
+        click.echo(f"  step {s + 1}/{steps}, batch PSNR {p:.2f} dB", err=True)
+        if not quiet and (s + 1) % every == 0 else None))
     seconds = time.perf_counter() - clock
     if output:
         write_bytes_atomic(output, blob)
@@ -58,10 +64,10 @@ def command(sequence_path, curves_path, max_triangles, steps, batch_size, dim, t
                  for k, tk in enumerate(seq.times)]
     click.echo(f"dfc: {len(blob)} bytes ({in_bytes / len(blob):.1f}x smaller), PSNR {report.psnr:.2f} dB over all "
                f"frames, worst frame {min(per_frame):.2f} dB (data range {report.data_range:.4g}); "
-               f"{report.n_triangles} triangles, {steps} steps, {seconds:.0f} s")
+               f"{report.n_triangles} triangles, {steps} steps, {seconds:.0f} s", err=text_err)
     if json_path:
         figures = {"sequence": str(sequence_path), "sequence_bytes": in_bytes, "frames": t, "width": w, "height": h,
                    "dfield_bytes": len(blob), "ratio": in_bytes / len(blob), "psnr": report.psnr,
                    "psnr_per_frame": per_frame, "data_range": report.data_range, "triangles": report.n_triangles,
                    "steps": steps, "dim": dim, "seconds": seconds, "chunk_bytes": report.chunk_bytes}
-        write_bytes_atomic(json_path, (json.dumps(figures, indent=2) + "\n").encode())
+        write_json(json_path, figures)

@@ -10,7 +10,13 @@ pixel centre), the MSE of
     ``--restarts`` seeds by MSE over the samples themselves), rendered
     at the pixel centres (``dfc.render.render``),
 
-and prints their ratio, the variance-reduction factor (paper: 19.21× at 11 spp).
+and prints their ratio, the variance-reduction factor (paper: 19.21× at 11 spp), and the PSNR of each against the
+reference (data range ``dfc.metrics.data_range`` of the reference).
+
+With ``--encode`` it also measures what ``dfc encode SAMPLES.npz`` writes (``dfc.codec.encode_samples`` with the
+codec's own mesh sizing, ``--steps``, ``--batch-size`` and ``--seed``): the file decoded, rendered at the pixel
+centres, against the reference — the held-out figure — beside the PSNR the encoder itself reports
+(``EncodeReport.psnr``, measured on the samples).
 
 Curved pieces are cut as ``dfc encode SAMPLES.npz`` cuts them (``dfc.geometry.curves.split_pieces``), into parts at most
 ``dfc.codec.SAMPLE_PIECE_REL`` = 1/64 of the domain's long side (``--piece-length`` overrides, in pixels); the
@@ -32,13 +38,12 @@ pixel cut by a discontinuity, where it blends both sides. The MSE over all pixel
 
 from __future__ import annotations
 
-import json
 import time
 
 import click
 import numpy as np
 
-from ...io.atomic import write_bytes_atomic
+from ...cli.options import quiet_option, stdout_taken, write_json
 
 
 def _spp_list(ctx, param, value):
@@ -86,11 +91,14 @@ def _odd(ctx, param, value):
 @click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
 @click.option("--device", default="cpu", show_default=True, help="torch device of the fits.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the walks and the fits.")
-@click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
-              help="Also write the figures to this JSON file.")
+@click.option("--encode", "measure_encode", is_flag=True,
+              help="Also encode each sample set as dfc encode does and measure the file against the reference.")
+@click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
+              help="Also write the figures to this JSON file (- for standard output; the text then goes to "
+                   "standard error).")
+@quiet_option
 def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length, qat, lr, final_lr, restarts,
-            batch_size,
-            reference_scale, threads, device, seed, json_path):
+            batch_size, reference_scale, threads, device, seed, measure_encode, json_path, quiet):
     """Variance reduction of a dfc fit over the raw mean of walk-on-spheres samples, per sample count."""
     import torch
 
@@ -99,11 +107,13 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
     from ...geometry.pixels import edge_pixels
     from ...geometry.triangulate import triangulate
     from ...io.samples import SampleSet
+    from ...metrics import data_range, psnr
     from ...physics.reference import solve_reference
     from ...physics.wos import Scene, grid_size, sample_scene
     from ...render import render
     from ...train.fit import fit_samples
 
+    text_err = stdout_taken(json_path)
     if threads is not None:
         torch.set_num_threads(threads)
     curves = read_curves(scene_path)
@@ -125,6 +135,7 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
                        max_triangles=max_triangles)
     clean = ~edge_pixels(mesh, height, width)
     n_pix = width * height
+    peak = data_range(reference)
     stats: dict = {"scene": str(scene_path), "width": width, "height": height, "reference_scale": k,
                    "triangles": mesh.n_triangles, "steps": steps, "batch_size": batch_size, "qat": qat, "lr": lr,
                    "final_lr": final_lr, "restarts": restarts, "piece_length_px": piece_length,
@@ -132,9 +143,10 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
                    "reference_s": reference_s, "wos_s": wos_s, "rows": []}
     click.echo(f"{scene_path}: {width} × {height} pixels ({clean.mean():.1%} not crossed by a curve), "
                f"reference {k * width} × {k * height} in {reference_s:.1f} s; {len(samples)} walks in {wos_s:.1f} s "
-               f"({capped[0]} capped); mesh {mesh.n_triangles} triangles, {steps} steps")
+               f"({capped[0]} capped); mesh {mesh.n_triangles} triangles, {steps} steps", err=text_err)
     click.echo(f"{'spp':>4} {'raw MSE':>10} {'fit MSE':>10} {'factor':>7}   {'all: raw':>10} {'fit':>10} "
-               f"{'factor':>7} {'fit s':>6}")
+               f"{'factor':>7} {'fit s':>6}   PSNR against the reference (data range {peak:.3g}): raw / fit"
+               + (" / encode (encoder's own, on the samples)" if measure_encode else ""), err=text_err)
     for spp in spp_list:
         n = spp * n_pix
         subset = SampleSet(samples.xy[:n], samples.values[:n], samples.domain, samples.channels)
@@ -152,11 +164,38 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
                "raw_mse_all": float(err_raw.mean()), "fit_mse_all": float(err_fit.mean()), "fit_s": fit_s}
         row["factor"] = row["raw_mse"] / row["fit_mse"]
         row["factor_all"] = row["raw_mse_all"] / row["fit_mse_all"]
+        row["raw_psnr"] = psnr(reference, raw, data_range=peak)
+        row["fit_psnr"] = psnr(reference, image, data_range=peak)
+        line = f"{row['raw_psnr']:.2f} / {row['fit_psnr']:.2f} dB"
+        if measure_encode:
+            row["encode"] = _encode(subset, curves, steps, batch_size, seed, device, reference, clean, peak)
+            line += f" / {row['encode']['psnr']:.2f} dB ({row['encode']['encoder_psnr']:.2f})"
         stats["rows"].append(row)
         click.echo(f"{spp:>4} {row['raw_mse']:10.3e} {row['fit_mse']:10.3e} {row['factor']:6.2f}×   "
-                   f"{row['raw_mse_all']:10.3e} {row['fit_mse_all']:10.3e} {row['factor_all']:6.2f}× {fit_s:6.1f}")
+                   f"{row['raw_mse_all']:10.3e} {row['fit_mse_all']:10.3e} {row['factor_all']:6.2f}× {fit_s:6.1f}   "
+                   + line, err=text_err)
     if json_path:
-        write_bytes_atomic(json_path, json.dumps(stats, indent=2).encode())
+        write_json(json_path, stats)
+
+
+def _encode(samples, curves, steps, batch_size, seed, device, reference, clean, peak) -> dict:
+    """``dfc.codec.encode_samples`` of ``samples`` decoded and rendered at the pixel centres, against ``reference``
+    (H, W, C): PSNR on every pixel, MSE on every pixel and on the ``clean`` ones, the encoder's own PSNR, bytes,
+    triangles and seconds."""
+    from ...codec import EncodeSettings, encode_samples, loads
+    from ...metrics import psnr
+    from ...render import render
+
+    clock = time.perf_counter()
+    blob, report = encode_samples(samples, curves, EncodeSettings(steps=steps, batch_size=batch_size, seed=seed,
+                                                                  device=device))
+    seconds = time.perf_counter() - clock
+    height, width = reference.shape[:2]
+    image = render(loads(blob), width, height)
+    err = (image - reference) ** 2
+    return {"psnr": psnr(reference, image, data_range=peak), "mse": float(err[clean].mean()),
+            "mse_all": float(err.mean()), "encoder_psnr": report.psnr, "bytes": len(blob),
+            "triangles": report.n_triangles, "seconds": seconds}
 
 
 def _sample_mse(model, samples, chunk: int = 1 << 16) -> float:

@@ -1,0 +1,64 @@
+"""Held-out truth in the encoders' benchmarks: FEM element centroids against the finite element interpolant, and a
+walk-on-spheres encode against the reference solve."""
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+
+from dfc.bench.speed.fem import interior_points
+from dfc.physics.fem import sample_fem
+
+from ..cli.test_cli import run
+from ..conftest import SAMPLES
+from ..physics.test_fem import grid_mesh, write_curves
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+@pytest.fixture
+def wall(tmp_path):
+    pts, tris = grid_mesh(9)
+    u = np.where(pts[:, 0] < 0.5, 0.2, 0.7) + 0.1 * pts[:, 1]
+    path = tmp_path / "sol.vtu"
+    meshio.write(path, meshio.Mesh(np.c_[pts, np.zeros(len(pts))], [("triangle", tris)], point_data={"u": u}))
+    return path, write_curves(tmp_path / "wall.json", [[[0.5, 0.0], [0.5, 1.0]]])
+
+
+def test_interior_points_are_centroids_no_training_sample_hits(wall):
+    from dfc.geometry.curves import read_curves
+    from dfc.io.fem import read_fem
+
+    sol = read_fem(wall[0])
+    xy, tri, bary = interior_points(sol, 50)
+    assert len(xy) == 50 and len(np.unique(tri)) == 50 and np.allclose(bary, 1 / 3)
+    np.testing.assert_allclose(xy, sol.points[sol.triangles[tri]].mean(axis=1))
+    train, _ = sample_fem(sol, read_curves(wall[1]))
+    assert np.min(np.linalg.norm(xy[:, None] - train[None], axis=2)) > 1e-9
+    assert len(interior_points(sol, 10**6)[0]) == len(sol.triangles)
+
+
+def test_fem_benchmark_reports_held_out_psnr_and_equal_steps(wall, tmp_path, capsys):
+    out = tmp_path / "fem.json"
+    code, stdout, err = run(["benchmark", "fem", wall[0], "--curves", wall[1], "--max-triangles", "200", "--steps",
+                             "40", "--batch-size", "1024", "--interior-points", "60", "--json", out], capsys)
+    assert code == 0, err
+    figures = json.loads(out.read_text())
+    assert figures["held_out_points"] == 60 and figures["hash_steps"] == figures["dfc_steps"] == 40
+    for key in ("dfc_psnr_held_out", "hash_psnr_held_out"):
+        assert 5 < figures[key] < 100
+    assert "held out" in stdout
+
+
+def test_wos_benchmark_measures_the_encode_against_the_reference(tmp_path, capsys):
+    out = tmp_path / "wos.json"
+    code, stdout, err = run(["benchmark", "wos", SAMPLES / "diffusion_small.json", "--resolution", "12", "--spp", "1",
+                             "--steps", "5", "--batch-size", "256", "--max-triangles", "600", "--encode", "--json",
+                             out], capsys)
+    assert code == 0, err
+    row = json.loads(out.read_text())["rows"][0]
+    enc = row["encode"]
+    assert enc["bytes"] > 0 and enc["triangles"] > 0 and np.isfinite(enc["encoder_psnr"])
+    assert 0 < enc["psnr"] < 100 and enc["mse_all"] >= 0 and 0 < row["raw_psnr"] < 100
+    assert "encode" in stdout

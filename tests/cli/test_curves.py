@@ -1,0 +1,129 @@
+"""``dfc curves IMAGE -o CURVES.json``: the JSON it writes, the preview, the summary, and every bad input giving
+one error line and no output file."""
+
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from dfc.geometry.sources import read_json
+from dfc.io.image import write_exr, write_png
+
+from .test_cli import assert_one_line_error, run
+
+pytest.importorskip("skimage")
+
+
+@pytest.fixture
+def disc_exr(tmp_path):
+    y, x = (np.mgrid[0:40 * 8, 0:48 * 8] + 0.5) / 8
+    inside = ((x - 24.2) ** 2 + (y - 19.7) ** 2 < 11.5 ** 2).reshape(40, 8, 48, 8).mean(axis=(1, 3))
+    pixels = (0.05 + 40.0 * inside)[..., None] * np.array([1.0, 0.6, 0.3])
+    path = tmp_path / "disc.exr"
+    write_exr(path, pixels.astype(np.float32), ["R", "G", "B"], half=False)
+    return path
+
+
+def test_curves_of_an_exr(disc_exr, tmp_path, capsys):
+    out, preview = tmp_path / "disc.json", tmp_path / "disc.png"
+    code, stdout, err = run(["curves", disc_exr, "-o", out, "--preview", preview, "--json", "-"], capsys)
+    assert code == 0, err
+    curves = read_json(out)
+    assert curves.domain == (0.0, 0.0, 48.0, 40.0) and curves.n_curves == 1
+    radius = np.linalg.norm(curves.control_points[:, [0, 3]].reshape(-1, 2) - (24.2, 19.7), axis=1)
+    assert np.abs(radius - 11.5).max() < 0.05
+    summary = json.loads(stdout)
+    assert summary["curves"] == 1 and summary["pieces"] == len(curves) and summary["width"] == 48
+    assert summary["settings"]["tolerance"] == 0.05
+    with Image.open(preview) as im:
+        assert im.format == "PNG" and im.size == (1024, round(1024 * 40 / 48))
+
+
+def test_constant_png_writes_the_empty_set(tmp_path, capsys):
+    path, out = tmp_path / "flat.png", tmp_path / "flat.json"
+    write_png(path, np.full((12, 10, 3), 0.3, np.float32))
+    code, _, err = run(["curves", path, "-o", out], capsys)
+    assert code == 0 and "empty curve set" in err
+    curves = read_json(out)
+    assert len(curves) == 0 and curves.domain == (0.0, 0.0, 10.0, 12.0)
+
+
+@pytest.mark.parametrize("case", ["one_pixel", "nan", "not_an_image", "bad_output", "low_above_high"])
+def test_bad_input_is_one_error_line_and_no_file(case, tmp_path, capsys):
+    out = tmp_path / "out.json"
+    args = []
+    if case == "one_pixel":
+        path, match = tmp_path / "one.exr", "1 × 1"
+        write_exr(path, np.ones((1, 1, 3), np.float32), ["R", "G", "B"])
+    elif case == "nan":
+        pixels = np.ones((8, 8, 3), np.float32)
+        pixels[2, 5, 1] = np.nan
+        path, match = tmp_path / "nan.exr", "NaN"
+        write_exr(path, pixels, ["R", "G", "B"], half=False)
+    elif case == "not_an_image":
+        path, match = tmp_path / "notes.txt", "not an input"
+        path.write_text("hello")
+    else:
+        path = tmp_path / "ok.png"
+        write_png(path, np.full((8, 8, 1), 0.5, np.float32))
+        if case == "bad_output":
+            out, match = tmp_path / "out.svg", ".json"
+        else:
+            args, match = ["--low", "0.5", "--high", "0.2"], "--low"
+    code, _, err = run(["curves", path, "-o", out, *args], capsys)
+    assert_one_line_error(code, err, match)
+    assert not out.exists()
+
+
+def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, capsys):
+    """``dfc encode IMAGE --curves auto``: the curves ``dfc curves`` finds with its defaults, and the file says so."""
+    from dfc.cli.stats import file_stats
+    from dfc.geometry.sources.raster import RasterSettings, image_curves
+    from dfc.io.image import read_image
+
+    out = tmp_path / "disc.dfield"
+    code, stdout, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
+                             "--json", tmp_path / "s.json"], capsys)
+    assert code == 0, err
+    expected = image_curves(read_image(disc_exr).pixels)
+    record = file_stats(out)["encoder"]
+    assert record["source"] == "auto"
+    assert record["curves"]["settings"] == RasterSettings().to_dict()
+    assert record["curves"]["curves"] == expected.n_curves == 1 and record["curves"]["pieces"] == len(expected)
+    assert "found in the image" in stdout and "1 curves" in stdout
+    assert json.loads((tmp_path / "s.json").read_text())["curves"]["settings"]["tolerance"] == 0.05
+    code, table, _ = run(["stats", out], capsys)
+    assert code == 0 and "1 curves" in table and "from the image (--curves auto)" in table and "tolerance=0.05" in table
+
+
+def test_encode_without_curves_still_asks(disc_exr, tmp_path, capsys):
+    code, _, err = run(["encode", disc_exr, "-o", tmp_path / "x.dfield"], capsys)
+    assert code == 2 and "Missing option '--curves'" in err and "--curves auto" in err
+    assert not (tmp_path / "x.dfield").exists()
+
+
+def test_auto_curves_apply_to_images_only(tmp_path, capsys):
+    xy = np.random.default_rng(0).random((200, 2)) * 8
+    np.savez(tmp_path / "s.npz", xy=xy, values=xy[:, :1], domain=[0, 0, 8, 8])
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", "auto", "-o", tmp_path / "x.dfield"], capsys)
+    assert code == 2 and "--curves auto finds curves in an image" in err
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", tmp_path / "gone.json", "-o", tmp_path / "x.dfield"],
+                       capsys)
+    assert code == 2 and "does not exist" in err
+
+
+def test_auto_curves_need_the_image_in_memory(disc_exr, tmp_path, capsys):
+    code, _, err = run(["encode", disc_exr, "--curves", "auto", "--epoch-pixels", "1000", "-o", tmp_path / "x.dfield"],
+                       capsys)
+    assert code == 2 and "--curves auto reads the whole image" in err and "dfc curves" in err
+    assert not (tmp_path / "x.dfield").exists()
+
+
+def test_auto_curves_without_the_extra_name_it(disc_exr, tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "dfc.geometry.sources.raster", None)  # as if scikit-image were missing
+    code, _, err = run(["encode", disc_exr, "--curves", "auto", "-o", tmp_path / "x.dfield"], capsys)
+    assert_one_line_error(code, err, "pip install 'dfc[curves]'")
+    assert not (tmp_path / "x.dfield").exists()
