@@ -173,9 +173,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     # follows the input's size too (never wider than ``settings.hidden``)
     if settings.target_bytes is None:
         settings = replace(settings, hidden=min(settings.hidden, decoder_hidden(pixels.size)))
-    centres = window_points(curves.domain, w, h)
-
-    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not)
+    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not); --refine only
+        centres = window_points(curves.domain, w, h)
         err = _error(m, centres, pixels.reshape(-1, c), settings)
         err[edge_pixels(m.field.mesh, h, w).ravel()] = 0.0
         return centres, err
