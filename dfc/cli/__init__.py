@@ -51,7 +51,11 @@ def cli():
 
 
 def _terminate(signum, frame):
-    raise SystemExit(128 + signum)  # unwinds like Ctrl-C: atomic writers remove their temporary files
+    """SIGTERM unwinds like Ctrl-C, so atomic writers remove their temporary files. Once: a second SIGTERM while
+    unwinding (a launcher stopping its ranks may send more than one) would interrupt the clean-up, or an exit
+    handler, with a traceback."""
+    signal.signal(signum, signal.SIG_IGN)
+    raise SystemExit(128 + signum)
 
 
 OPENMP_ENVIRONMENT = {"OMP_WAIT_POLICY": "PASSIVE"}

@@ -322,3 +322,17 @@ def test_sample_set_summary_says_held_out_and_reference(tmp_path, capsys):
     code, _, err = run(["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o",
                         tmp_path / "u.dfield", "--reference", tmp_path / "ref.npz"], capsys)
     assert_one_line_error(code, err, "--reference applies to sample sets")
+
+
+def test_sigterm_unwinds_once(monkeypatch):
+    """A second SIGTERM while the first one unwinds (exit handlers included) is ignored, not a traceback."""
+    import signal
+
+    from dfc.cli import _terminate
+
+    monkeypatch.setattr(signal, "signal", lambda signum, handler: seen.append((signum, handler)))
+    seen = []
+    with pytest.raises(SystemExit) as exit_info:
+        _terminate(signal.SIGTERM, None)
+    assert exit_info.value.code == 128 + signal.SIGTERM
+    assert seen == [(signal.SIGTERM, signal.SIG_IGN)]
