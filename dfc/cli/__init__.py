@@ -4,6 +4,7 @@ assembles the group and turns library errors into one-line messages (exit 1), th
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 import os
@@ -58,6 +59,18 @@ def _terminate(signum, frame):
     raise SystemExit(128 + signum)
 
 
+@contextlib.contextmanager
+def sigterm_unwinds():
+    """While the block runs, SIGTERM unwinds like Ctrl-C (``_terminate``). After it, SIGTERM takes its default
+    action again: the work is done or unwound, and a SIGTERM that raised inside an exit handler (a launcher stopping
+    a rank that is already exiting) would print a traceback instead of ending the process."""
+    signal.signal(signal.SIGTERM, _terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 OPENMP_ENVIRONMENT = {"OMP_WAIT_POLICY": "PASSIVE"}
 """Set (unless the user set them) before torch is loaded. OpenMP's idle worker threads otherwise spin, waiting
 for the next parallel region: two such programs on the same cores (a batch encoded in parallel, tests beside a
@@ -82,25 +95,25 @@ def main(argv: list[str] | None = None):
     quiet_openmp()
     from ..errors import DfcError
 
-    signal.signal(signal.SIGTERM, _terminate)
-    try:
-        cli.main(args=argv, prog_name="dfc", standalone_mode=False)
-    except click.exceptions.Abort:
-        click.echo("Aborted!", err=True)
-        raise SystemExit(1)
-    except click.ClickException as e:
-        e.show()
-        raise SystemExit(e.exit_code)
-    except DfcError as e:
-        click.echo(f"dfc: error: {e}", err=True)
-        raise SystemExit(1)
-    except OSError as e:
-        where = f": {e.filename}" if getattr(e, "filename", None) else ""
-        click.echo(f"dfc: error: {e.strerror or e}{where}", err=True)
-        raise SystemExit(1)
-    except MemoryError:
-        click.echo("dfc: error: out of memory (try a smaller --size, --batch-size or mesh)", err=True)
-        raise SystemExit(1)
-    except KeyboardInterrupt:
-        click.echo("Aborted!", err=True)
-        raise SystemExit(130)
+    with sigterm_unwinds():
+        try:
+            cli.main(args=argv, prog_name="dfc", standalone_mode=False)
+        except click.exceptions.Abort:
+            click.echo("Aborted!", err=True)
+            raise SystemExit(1)
+        except click.ClickException as e:
+            e.show()
+            raise SystemExit(e.exit_code)
+        except DfcError as e:
+            click.echo(f"dfc: error: {e}", err=True)
+            raise SystemExit(1)
+        except OSError as e:
+            where = f": {e.filename}" if getattr(e, "filename", None) else ""
+            click.echo(f"dfc: error: {e.strerror or e}{where}", err=True)
+            raise SystemExit(1)
+        except MemoryError:
+            click.echo("dfc: error: out of memory (try a smaller --size, --batch-size or mesh)", err=True)
+            raise SystemExit(1)
+        except KeyboardInterrupt:
+            click.echo("Aborted!", err=True)
+            raise SystemExit(130)

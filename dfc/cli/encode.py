@@ -358,23 +358,22 @@ def run_band_job(job: BandJob):
 def rank_main(job: BandJob):
     """Entry point of each local rank of ``dfc encode --workers N``: rank 0 writes the file and returns the report.
     A rank ends when the launching process does, however that ends (Linux: the parent-death signal)."""
+    from . import sigterm_unwinds
+
     _end_with_parent()
-    blob, report = _as_rank(job)
-    if blob is not None:
-        write_bytes_atomic(job.output, blob)
+    with sigterm_unwinds():  # unwinds, so the atomic writers remove their temporary files
+        blob, report = _as_rank(job)
+        if blob is not None:
+            write_bytes_atomic(job.output, blob)
     return report
 
 
 def _end_with_parent() -> None:
-    """SIGTERM ends this process as it ends the CLI, and Linux sends it when the parent dies
-    (``prctl(PR_SET_PDEATHSIG)``)."""
+    """Linux sends this process SIGTERM when the parent dies (``prctl(PR_SET_PDEATHSIG)``)."""
     import ctypes
     import signal
     import sys
 
-    from . import _terminate
-
-    signal.signal(signal.SIGTERM, _terminate)  # unwinds, so the atomic writers remove their temporary files
     if sys.platform.startswith("linux"):
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
 

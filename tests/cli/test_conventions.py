@@ -6,6 +6,7 @@ import io
 import json
 import os
 import shutil
+import subprocess
 import sys
 from collections import namedtuple
 from pathlib import Path
@@ -336,3 +337,17 @@ def test_sigterm_unwinds_once(monkeypatch):
         _terminate(signal.SIGTERM, None)
     assert exit_info.value.code == 128 + signal.SIGTERM
     assert seen == [(signal.SIGTERM, signal.SIG_IGN)]
+
+
+def test_sigterm_after_the_command_ends_the_process_without_a_traceback():
+    """A launcher stopping a rank that is already exiting: a SIGTERM that arrives in an exit handler, after the
+    command ended, ends the process by the signal instead of raising inside the handler (a traceback)."""
+    import signal
+
+    script = ("import atexit, os, signal, time\n"
+              "from dfc.cli import main\n"
+              "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGTERM), time.sleep(5)))\n"
+              "main(['--version'])\n")
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert "Traceback" not in proc.stderr, proc.stderr
+    assert proc.returncode == -signal.SIGTERM
