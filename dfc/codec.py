@@ -20,7 +20,7 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import load, loads, to_contents
 from .metrics import QualityScale, quality_scale
 from .metrics import data_range as signal_range
-from .rate import decoder_hidden, image_mesh_size, sample_mesh_size, sized_mesh
+from .rate import DECODER_SHARE, decoder_hidden, image_mesh_size, sample_mesh_size, sized_mesh
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
@@ -39,6 +39,8 @@ HOLDOUT_FRACTION = 0.1
 """Sample sets: this share of the samples (at most ``HOLDOUT_MAX``, none below ``HOLDOUT_MIN_SAMPLES``) is left out
 of the fit and the file's PSNR is measured against them: against the samples it was fitted to, a fit that follows
 their noise would look better the worse it denoises."""
+TARGET_PSNR_ROUNDS = 4
+"""Refinement rounds an image encode runs at most to reach ``EncodeSettings.target_psnr``."""
 HOLDOUT_MAX = 1 << 18
 HOLDOUT_MIN_SAMPLES = 100
 
@@ -52,8 +54,10 @@ class EncodeSettings:
 
     Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``; then ``refine``
     rounds of error-driven refinement (``_refine``: each splits the triangles holding ``dfc.rate.REFINE_SHARE`` of
-    the fit's squared error, at most ``refine_fraction`` of the triangle count, and refits for ``refine_steps``,
-    default half of ``steps``, from the previous fit; images read whole). Fit
+    the fit's squared error, at most ``refine_fraction`` of the triangle count, or under a byte target as many as it
+    still pays for, and refits for ``refine_steps``, default half of ``steps``, from the previous fit; images read
+    whole; None: one round under a byte target, up to ``TARGET_PSNR_ROUNDS`` under ``target_psnr`` (stopping once
+    the fit's 1× PSNR, anti-aliased, reaches it), else none). Fit
     (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
     ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks,
     recorded). Storage (spec/dfield.md): ``feature_bits``, ``feature_coding`` ("predicted": ``FEAC``, "plain": the
@@ -64,7 +68,8 @@ class EncodeSettings:
     max_area: float | None = None
     edge_length: float | None = None
     target_bytes: int | None = None
-    refine: int = 0
+    target_psnr: float | None = None
+    refine: int | None = None
     refine_steps: int | None = None
     refine_fraction: float = 0.25
     steps: int = DEFAULT_STEPS
@@ -118,6 +123,24 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
     )
 
 
+def refine_rounds(settings) -> int:
+    """Rounds of refinement of an image encode read whole: ``settings.refine``, else (None) one under a byte target
+    (it fills the target: ``dfc.rate.fill_points``), at most ``TARGET_PSNR_ROUNDS`` under a PSNR target, and none
+    without either."""
+    if settings.refine is not None:
+        return settings.refine
+    return 1 if settings.target_bytes else TARGET_PSNR_ROUNDS if settings.target_psnr is not None else 0
+
+
+def _image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> EncodeSettings:
+    """``settings`` with the decoder width of an image of ``n_values`` numbers (``dfc.rate.decoder_hidden``; under a
+    byte target, within its ``dfc.rate.DECODER_SHARE``), never wider than ``settings.hidden``."""
+    budget = None if settings.target_bytes is None else DECODER_SHARE * settings.target_bytes
+    width = decoder_hidden(n_values, budget, inputs=settings.dim, outputs=n_channels, layers=settings.layers,
+                           weight_bits=settings.weight_bits)
+    return replace(settings, hidden=min(settings.hidden, width))
+
+
 def storage(settings) -> dict:
     """``dfc.io.container.encode_dfield``'s keyword arguments for ``settings`` (an ``EncodeSettings``)."""
     return {"feature_bits": settings.feature_bits, "feature_coding": settings.feature_coding,
@@ -157,7 +180,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     from .geometry.pixels import edge_pixels
     from .io.image import check_pixels
     from .io.samples import default_channels
-    from .render import default_edge_spp, render, window_points
+    from .render import EDGE_SPP, default_edge_spp, render, window_points
     from .train.fit import fit_image
 
     settings = settings or EncodeSettings()
@@ -169,23 +192,22 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     clock = time.perf_counter()
     settings, mesh = image_mesh_size(curves, settings, w * h)  # small images: a mesh and decoder sized to them
     sizing_s = time.perf_counter() - clock
-    # a byte target sizes the mesh for the decoder of ``settings`` (``dfc.rate.mesh_for_bytes``); else the decoder
-    # follows the input's size too (never wider than ``settings.hidden``)
-    if settings.target_bytes is None:
-        settings = replace(settings, hidden=min(settings.hidden, decoder_hidden(pixels.size)))
-    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not); --refine only
+    settings = replace(_image_decoder(settings, pixels.size, c), refine=refine_rounds(settings))
+
+    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not): refinement
         centres = window_points(curves.domain, w, h)
         err = _error(m, centres, pixels.reshape(-1, c), settings)
         err[edge_pixels(m.field.mesh, h, w).ravel()] = 0.0
         return centres, err
 
-    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, mesh=mesh,
-                                   residual=residual, min_area=0.25, data_range=scale.data_range,
-                                   tonemap=scale.tonemap)
-    seconds["mesh_s"] += sizing_s
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
                                                   "hdr": float(pixels.max()) > 1.0,
                                                   **({"curves": curves_info} if curves_info else {})})
+    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, mesh=mesh,
+                                   residual=residual, min_area=0.25, size_of=_size_of(settings, info, (1.0, 1.0)),
+                                   quality=lambda m: scale.psnr(pixels, render(m, w, h, edge_spp=EDGE_SPP)),
+                                   data_range=scale.data_range, tonemap=scale.tonemap)
+    seconds["mesh_s"] += sizing_s
     return _finish(model, settings, info, seconds, w * h,
                    lambda m: (pixels, render(m, w, h, edge_spp=default_edge_spp(m, w, h))), scale,
                    pixel_size=(1.0, 1.0))
@@ -216,6 +238,7 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     h, w = source.height, source.width
     channels = list(source.channels)
     curves = check_domain(curves, w, h, fit_curves)
+    settings = _image_decoder(settings, w * h * len(channels), len(channels))
     clock = time.perf_counter()
     mesh = _on_rank0(lambda: sized_mesh(curves, settings, channels)[1])
     seconds = {"mesh_s": time.perf_counter() - clock}
@@ -401,13 +424,14 @@ def _physical(settings: EncodeSettings) -> tuple[EncodeSettings, dict]:
 
 
 def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, channels: list[str], callback,
-                  mesh=None, residual=None, min_area: float = 0.0, **fit_kw):
+                  mesh=None, residual=None, min_area: float = 0.0, size_of=None, quality=None, **fit_kw):
     """Build the decoder-view mesh (unless ``mesh`` is that mesh already), then fit ``fit_fn`` (``fit_image``,
     ``fit_samples`` or ``fit_frames``) to ``signal`` on it, and refine ``settings.refine`` times (``_refine``, with
-    ``residual(model) -> (xy (M, 2), squared error (M,))`` and triangles of at least ``min_area`` split); ``fit_kw``
-    go to ``fit_fn``. Returns (model, seconds per stage)."""
+    ``residual(model) -> (xy (M, 2), squared error (M,))``, triangles of at least ``min_area`` split,
+    ``size_of(model) -> bytes`` of its file for a byte target and ``quality(model) -> dB`` for a PSNR target);
+    ``fit_kw`` go to ``fit_fn``. Returns (model, seconds per stage)."""
     clock = time.perf_counter()
-    mesh_settings, mesh = (settings, mesh) if mesh is not None else sized_mesh(curves, settings, channels)
+    mesh_settings, mesh = (settings, mesh) if mesh is not None else sized_mesh(curves, settings, channels, size_of)
     seconds = {"mesh_s": time.perf_counter() - clock}
     clock = time.perf_counter()
     fit_kw = {"batch_size": settings.batch_size, "dim": settings.dim, "seed": settings.seed, "loss": settings.loss,
@@ -418,32 +442,54 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
     seconds["fit_s"] = time.perf_counter() - clock
     if settings.refine and residual is not None:
         clock = time.perf_counter()
-        model = _refine(model, fit_fn, signal, curves, settings, mesh_settings, residual, min_area, fit_kw)
+        model = _refine(model, fit_fn, signal, curves, settings, mesh_settings, residual, min_area, size_of, quality,
+                        fit_kw)
         seconds["refine_s"] = time.perf_counter() - clock
     return model, seconds
 
 
 def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mesh_settings, residual,
-            min_area: float, fit_kw):
+            min_area: float, size_of, quality, fit_kw):
     """``settings.refine`` rounds of error-driven refinement of a fitted ``model``: split the triangles where
-    ``residual`` is largest (``dfc.rate.refinement_points``; curved triangles stay), rebuild the mesh (with
-    ``mesh_settings``, which built the first one, plus the new vertices) and refit from the current fit (``init``).
-    Stops early when no triangle is left to split."""
-    from .rate import build_mesh, refinement_points
+    ``residual`` is largest (curved triangles stay), rebuild the mesh (with ``mesh_settings``, which built the first
+    one, plus the new vertices) and refit from the current fit (``init``). Without a byte target a round splits the
+    triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
+    (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
+    files priced with ``size_of``). Stops early when no triangle is left to split, or when ``quality(model)``
+    reaches ``settings.target_psnr``."""
+    from .rate import build_mesh, fill_points, refinement_points
 
     extra = np.zeros((0, 2))
     steps = settings.refine_steps or max(1, settings.steps // 2)
     for _ in range(settings.refine):
+        if settings.target_psnr is not None and quality(model) >= settings.target_psnr:
+            break
         mesh = model.field.mesh
         xy, err = residual(model)
-        most = max(1, round(settings.refine_fraction * mesh.n_triangles))
-        points = refinement_points(mesh, xy, err, most=most, min_area=min_area)
+        if settings.target_bytes is None:
+            most = max(1, round(settings.refine_fraction * mesh.n_triangles))
+            points = refinement_points(mesh, xy, err, most=most, min_area=min_area)
+        else:
+            points = fill_points(model, curves, mesh_settings, extra, xy, err, size_of, settings.target_bytes,
+                                 min_area=min_area)
         if not len(points):
             break
         extra = np.concatenate([extra, points])
         mesh = build_mesh(curves, mesh_settings, extra_points=extra)
         model = fit_fn(signal, mesh, steps=steps, qat_steps=None, init=model, **fit_kw)
     return model
+
+
+def _size_of(settings: EncodeSettings, info: dict, pixel_size=None):
+    """``size_of(model) -> int``: bytes of ``model``'s file as ``_finish`` writes it."""
+    from .io.container import encode_dfield
+
+    def size_of(model) -> int:
+        blob, _ = encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True,
+                                **storage(settings))
+        return len(blob)
+
+    return size_of
 
 
 def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) -> np.ndarray:

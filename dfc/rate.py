@@ -19,9 +19,9 @@ from .geometry.curves import Curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
-__all__ = ["NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh",
-           "decoder_hidden", "image_mesh_size", "mesh_for_bytes", "refinement_points", "sample_mesh_size",
-           "sized_mesh"]
+__all__ = ["DECODER_SHARE", "FILL", "FILL_CARRY_POINTS", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
+           "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size",
+           "mesh_for_bytes", "refinement_points", "sample_mesh_size", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -35,8 +35,18 @@ PIXELS_PER_TRIANGLE = 16
 """Images without a mesh-size option get at most one triangle per this many pixels (and at most
 ``DEFAULT_TRIANGLES``, which a 256 × 256 image already reaches): a 64 × 64 image gets 256, a 1 × 1 image the two
 triangles of its square, plus what the curves force."""
+FILL = 0.97
+"""Refinement under a byte target aims at this share of the target (``fill_points``): the refit changes the
+features' bytes by a few per cent."""
+FILL_CARRY_POINTS = 1 << 14
+"""``fill_points`` prices a candidate mesh with a carry-over fitted at about this many of the caller's points."""
 DECODER_HIDDEN = (8, 64)
-"""Narrowest and widest hidden layers ``decoder_hidden`` gives (64: the paper's decoder)."""
+"""Narrowest and widest hidden layers ``decoder_hidden`` gives (64: the paper's decoder). A 32-wide cap gave files
+25–27 % smaller at −0.5 … +0.4 dB after 600 steps (``samples/sample.exr``, the bench scenes at 256², shapes at 1024²)
+but converges more slowly: after 300 steps an HDR image lost its saturated colours, so it is not the default."""
+DECODER_SHARE = 0.15
+"""Under a byte target the decoder's weights take at most this share of it (``decoder_hidden``): at 12 KB on
+``samples/sample.exr`` width 32 (1.7 KB) gives 0.6 dB more than width 64 (5.2 KB), whose bytes buy no triangles."""
 
 
 def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | None = None) -> Mesh:
@@ -74,43 +84,92 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
     return mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
 
 
-def sized_mesh(curves: Curves, settings, channels: list[str]) -> tuple[object, Mesh]:
+def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.ndarray, error: np.ndarray,
+                size_of, target: int, *, min_area: float = 0.0) -> np.ndarray:
+    """Refinement vertices (P, 2) float64 that fill a byte target: the centroids of the triangles to split, in
+    decreasing order of the error summed in them (``refinement_points`` with every triangle allowed), as many as
+    keep the file within ``FILL`` × ``target`` bytes.
+
+    A candidate count is priced by the file of ``model`` carried onto the refined mesh (``build_mesh`` with
+    ``mesh_settings``, ``extra`` (E, 2) and the candidates; ``dfc.field.transfer.carry_over`` at up to
+    ``FILL_CARRY_POINTS`` of ``xy``): ``size_of(model) -> bytes`` writes it as the encoder will. Fitted features are
+    smoother than random ones, so this is what the sizing probe of ``mesh_for_bytes`` (a random bank) cannot know.
+    The count is found by regula falsi on the file size, nearly linear in it: at most ``TARGET_BYTES_PROBES`` files,
+    stopping within 2 % of the count. No vertex when the file is already at the target.
+    """
+    from .field.model import FieldModel
+    from .field.transfer import carry_over
+
+    mesh = model.field.mesh
+    candidates = refinement_points(mesh, xy, error, share=1.0, most=mesh.n_triangles, min_area=min_area)
+    budget, n = FILL * target, len(candidates)
+    config, device = model.config(), model.field.bank.device
+    xy = xy[::max(1, len(xy) // FILL_CARRY_POINTS)]
+    known = {0: size_of(model)}  # candidate count -> bytes of the file
+
+    def price(k: int) -> int:
+        refined = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, candidates[:k]]))
+        carried = FieldModel.from_config(refined, config, device=device)
+        carry_over(model, carried, xy)
+        known[k] = size_of(carried)
+        return known[k]
+
+    lo, hi = 0, n + 1  # the largest count known to fit, the smallest known not to (n + 1: none)
+    slope = known[0] / mesh.n_vertices  # first guess: every vertex costs what one costs now (MLP included: low)
+    for _ in range(TARGET_BYTES_PROBES):
+        k = min(hi - 1, n, lo + max(1, int((budget - known[lo]) / max(slope, 1e-9))))
+        if k <= lo or budget <= known[lo]:
+            break
+        lo, hi = (k, hi) if price(k) <= budget else (lo, k)
+        if lo == n or hi - lo <= max(1, lo // 50):
+            break
+        a, b = (lo, hi) if hi <= n else (min(known), lo)  # regula falsi within the bracket, else extrapolate
+        slope = (known[b] - known[a]) / (b - a) if b > a else slope
+    return candidates[:lo]
+
+
+def sized_mesh(curves: Curves, settings, channels: list[str], size_of=None) -> tuple[object, Mesh]:
     """(mesh settings, mesh): the decoder-view mesh, sized to ``settings.target_bytes`` when given
     (``mesh_for_bytes``), else by the explicit knobs; and the settings that rebuild it with ``build_mesh`` (the
     byte target resolved into the triangle cap it found)."""
     if settings.target_bytes is None:
         return settings, build_mesh(curves, settings)
-    mesh, cap = _mesh_and_cap(curves, settings, channels)
+    mesh, cap = _mesh_and_cap(curves, settings, channels, size_of)
     return replace(settings, target_bytes=None, max_triangles=cap, max_area=None, edge_length=None), mesh
 
 
-def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int) -> tuple[int, Mesh]:
-    """Bytes of a file on a mesh of at most ``n_triangles`` (and that mesh): a fitted bank is about as
-    incompressible as a random one at the same bit depth."""
+def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int, size_of) -> tuple[int, Mesh]:
+    """Bytes of a file on a mesh of at most ``n_triangles`` (and that mesh): a fitted bank is at most about as
+    incompressible as a random one at the same bit depth. ``size_of(model) -> bytes`` writes the file (None: with
+    an empty header ``encoder`` record)."""
     from .field.feature_field import FeatureField
     from .field.model import FieldModel
-    from .io.container import encode_dfield
-    from .io.dfield import to_contents
 
     mesh = build_mesh(curves, replace(settings, max_triangles=n_triangles, max_area=None, edge_length=None))
-    from .codec import storage
-
     model = FieldModel(FeatureField(mesh, dim=settings.dim, seed=settings.seed), channels, hidden=settings.hidden,
                        layers=settings.layers)
     with torch.no_grad():
         model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
-    blob, _ = encode_dfield(to_contents(model), mesh_validated=True, **storage(settings))
-    return len(blob), mesh
+    return (size_of or _bare_size(settings))(model), mesh
 
 
-def mesh_for_bytes(curves: Curves, settings, channels: list[str]) -> Mesh:
+def _bare_size(settings):
+    """``size_of(model) -> bytes`` of the file written with ``settings``' storage and no ``encoder`` record."""
+    from .codec import storage
+    from .io.container import encode_dfield
+    from .io.dfield import to_contents
+
+    return lambda model: len(encode_dfield(to_contents(model), mesh_validated=True, **storage(settings))[0])
+
+
+def mesh_for_bytes(curves: Curves, settings, channels: list[str], size_of=None) -> Mesh:
     """The largest decoder-view mesh whose file stays within ``settings.target_bytes``, by bisection on the triangle
-    cap (at most ``TARGET_BYTES_PROBES`` triangulations). ``InputError`` when even the mesh the curves force is too
-    large."""
-    return _mesh_and_cap(curves, settings, channels)[0]
+    cap (at most ``TARGET_BYTES_PROBES`` triangulations; files priced by ``size_of(model) -> bytes``, by default
+    with an empty header ``encoder`` record). ``InputError`` when even the mesh the curves force is too large."""
+    return _mesh_and_cap(curves, settings, channels, size_of)[0]
 
 
-def _mesh_and_cap(curves: Curves, settings, channels: list[str]) -> tuple[Mesh, int]:
+def _mesh_and_cap(curves: Curves, settings, channels: list[str], size_of) -> tuple[Mesh, int]:
     """``mesh_for_bytes``'s mesh and the triangle cap it was built with."""
     # ``fits`` is the largest cap known to fit the target, ``over`` the smallest known not to (too many bytes, or
     # fewer triangles than the curves force).
@@ -118,7 +177,7 @@ def _mesh_and_cap(curves: Curves, settings, channels: list[str]) -> tuple[Mesh, 
     n = DEFAULT_TRIANGLES
     for _ in range(TARGET_BYTES_PROBES):
         try:
-            size, mesh = _file_bytes(curves, settings, channels, n)
+            size, mesh = _file_bytes(curves, settings, channels, n, size_of)
         except TriangleBudgetError:  # below the triangles the curves force: only larger caps can work
             fits, size = max(fits, n), None
         if size is not None and size <= settings.target_bytes:
@@ -150,13 +209,20 @@ def image_mesh_size(curves: Curves, settings, n_pixels: int):
     return _counted_mesh(curves, settings, n_pixels // PIXELS_PER_TRIANGLE)
 
 
-def decoder_hidden(n_values: int) -> int:
+def decoder_hidden(n_values: int, budget: float | None = None, *, inputs: int = 5, outputs: int = 3,
+                   layers: int = 2, weight_bits: int | None = 8) -> int:
     """Width of the decoder's hidden layers for an input of ``n_values`` numbers (pixels × channels): the power of
     two nearest below √n / 2, within ``DECODER_HIDDEN`` — 64 from about 150 × 150 RGB pixels up, 32 for 64 × 64,
-    8 for a handful of pixels, whose file would otherwise be mostly decoder weights (9 KB at width 64)."""
+    8 for a handful of pixels, whose file would otherwise be mostly decoder weights (9 KB at width 64). With a
+    ``budget`` in bytes, halved (not below the narrowest) until the weight matrices (``inputs`` features,
+    ``layers`` hidden layers, ``outputs`` channels; ``weight_bits`` each, None: float16) fit in it."""
     lo, hi = DECODER_HIDDEN
-    width = 1 << max(0, int(math.floor(math.log2(max(1.0, math.sqrt(n_values) / 2)))))
-    return min(hi, max(lo, width))
+    width = min(hi, max(lo, 1 << max(0, int(math.floor(math.log2(max(1.0, math.sqrt(n_values) / 2)))))))
+    bits = weight_bits or 16
+    while budget is not None and width > lo and \
+            (inputs * width + (layers - 1) * width * width + width * outputs) * bits / 8 > budget:
+        width //= 2
+    return width
 
 
 def _counted_mesh(curves: Curves, settings, cap: int):

@@ -47,3 +47,53 @@ def test_byte_targets_size_the_file_and_report_real_mesh_errors(scene, monkeypat
     monkeypatch.setattr(rate, "triangulate", broken)
     with pytest.raises(MeshError, match="cannot be separated"):  # not reported as a byte target too small
         rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000), ["R", "G", "B"])
+
+
+def test_the_decoder_narrows_to_its_share_of_a_byte_target():
+    from dfc.rate import DECODER_HIDDEN, decoder_hidden
+
+    lo, hi = DECODER_HIDDEN
+    assert decoder_hidden(10**7) == hi and decoder_hidden(10) == lo
+    weights = {w: 5 * w + w * w + 3 * w for w in (8, 16, 32, 64)}  # 5 features, two hidden layers, RGB
+    for budget in (100, 500, 2_000, 5_000, 10**6):
+        width = decoder_hidden(10**7, budget)
+        fits = [w for w in weights if weights[w] <= budget and w <= hi] or [lo]
+        assert width == max(fits)  # the widest whose 8-bit weights fit (the narrowest when none does)
+    assert decoder_hidden(10**7, 1_500) == 32 and decoder_hidden(10**7, 1_500, weight_bits=None) == 16  # float16
+    assert decoder_hidden(64 * 64 * 3, 10**6) == decoder_hidden(64 * 64 * 3)  # never wider than the input allows
+
+
+def test_fill_points_spend_what_the_target_leaves(scene):
+    """The refinement that fills a byte target: more vertices for a larger target, none when the file is already at
+    it, and the file carried onto the refined mesh within ``FILL`` of the target."""
+    import numpy as np
+
+    from dfc.codec import check_domain
+    from dfc.field.model import FieldModel
+    from dfc.field.transfer import carry_over
+    from dfc.io.container import encode_dfield
+    from dfc.io.dfield import to_contents
+    from dfc.rate import FILL, build_mesh, fill_points
+    from dfc.render import window_points
+    from dfc.train.fit import fit_image
+
+    image = scene.render(48, 48, spp=1)
+    curves = check_domain(scene.curves, 48, 48, fit=True)
+    settings = EncodeSettings(max_triangles=200)
+    model = fit_image(image, build_mesh(curves, settings), steps=20, batch_size=512, hidden=16)
+    xy = window_points(curves.domain, 48, 48)
+    err = np.abs(np.sin(xy[:, 0] * 0.3)) + 0.1  # any error map: where the splits go does not matter here
+
+    def size_of(m):
+        return len(encode_dfield(to_contents(m), mesh_validated=True)[0])
+
+    now = size_of(model)
+    none = fill_points(model, curves, settings, np.zeros((0, 2)), xy, err, size_of, int(now / FILL))
+    assert len(none) == 0
+    small, large = (fill_points(model, curves, settings, np.zeros((0, 2)), xy, err, size_of, int(f * now))
+                    for f in (1.3, 2.0))
+    assert 0 < len(small) < len(large)
+    refined = build_mesh(curves, settings, extra_points=large)
+    carried = FieldModel.from_config(refined, model.config())
+    carry_over(model, carried, xy)
+    assert size_of(carried) <= FILL * 2.0 * now

@@ -88,6 +88,9 @@ def _curves_arg(ctx, param, value):
 @click.option("--max-area", type=click.FloatRange(min=0, min_open=True), help="Largest triangle area (domain units²).")
 @click.option("--edge-length", type=click.FloatRange(min=0, min_open=True), help="Target edge length (domain units).")
 @click.option("--target-bytes", type=click.IntRange(min=1), help="Size the mesh so that the file is at most this big.")
+@click.option("--target-psnr", type=click.FloatRange(min=0, min_open=True), metavar="DB",
+              help="Image input read whole: refine the mesh (up to 4 rounds, each refitting for half the steps) until "
+                   "the file's PSNR, as the summary measures it, reaches DB; the summary says when it does not.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Optimiser steps  [default: 1000].")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
@@ -99,9 +102,11 @@ def _curves_arg(ctx, param, value):
               help="Bits per integer MLP weight (per-row scales, learnt in the quantisation-aware steps); 0: float16.")
 @click.option("--feature-coding", type=click.Choice(["predicted", "plain"]), default="predicted", show_default=True,
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
-@click.option("--refine", type=click.IntRange(0, 16), default=0, show_default=True,
+@click.option("--refine", type=click.IntRange(0, 16),
               help="Image input read whole: rounds of error-driven refinement after the fit (split the triangles with "
-                   "the largest error, refit for half the steps); each round adds triangles, so the file grows.")
+                   "the largest error, refit for half the steps). Without --target-bytes each round adds triangles, so "
+                   "the file grows; with it a round adds as many as the target still pays for  [default: 1 with "
+                   "--target-bytes, else 0].")
 @click.option("--loss", type=click.Choice(["auto", "mse", "relmse", "logmse"]), default="auto", show_default=True,
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
@@ -126,8 +131,8 @@ def _curves_arg(ctx, param, value):
                    "Across machines use torchrun (README).")
 @json_option
 @quiet_option
-def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, steps, batch_size,
-            dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, device, channels,
+def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, target_psnr, steps,
+            batch_size, dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, device, channels,
             fit_curves_to_image, times, fields, fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
@@ -137,17 +142,20 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
 
     The mesh is built first (size knobs: --max-triangles, --max-area, --edge-length or --target-bytes; default
     about 2,000 triangles plus those the curves force, fewer for small inputs), then a feature field is fitted on
-    it and written. The summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written
-    file, decoded again, against the input at its pixel centres (FEM nodes; every frame of a sequence), for HDR
-    images on tone-mapped values x/(1+x); for a sample set against the 10 % of the samples left out of the fit,
-    and against --reference; for an image read out of core (--epoch-pixels, --workers, torchrun, or an EXR above
-    4096 x 4096) at its held-out pixels. An existing OUTPUT is replaced, atomically, once the new file is complete.
+    it (for an image, refined where the error is largest to fill --target-bytes or reach --target-psnr) and
+    written. The summary gives bytes per chunk, bits per pixel of the input, and the PSNR of the written file,
+    decoded again, against the input (an image rendered at its size as dfc decode renders it, the pixels a curve
+    crosses anti-aliased; FEM nodes; every frame of a sequence), for HDR images on tone-mapped values x/(1+x); for a
+    sample set against the 10 % of the samples left out of the fit, and against --reference; for an image read out
+    of core (--epoch-pixels, --workers, torchrun, or an EXR above 4096 x 4096) at its held-out pixels. An existing OUTPUT is replaced, atomically, once the new file is complete.
     """
     from ..codec import EncodeSettings
     from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
         raise click.UsageError("give at most one of --max-area, --edge-length and --target-bytes")
+    if target_bytes is not None and target_psnr is not None:
+        raise click.UsageError("give --target-bytes or --target-psnr, not both")
     if output != "-" and not output.lower().endswith(".dfield"):
         raise click.BadParameter(f"must end in .dfield, got {output!r}", param_hint="'-o' / '--output'")
     if [*input_paths, curves_path].count("-") > 1:
@@ -166,7 +174,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if curves_path == "auto" and kind != "image":
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
-                                  target_bytes=target_bytes, steps=steps or DEFAULT_STEPS, batch_size=batch_size,
+                                  target_bytes=target_bytes, target_psnr=target_psnr, steps=steps or DEFAULT_STEPS,
+                                  batch_size=batch_size,
                                   dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits,
                                   weight_bits=weight_bits or None, feature_coding=feature_coding, refine=refine,
                                   loss=loss, seed=seed, device=check_device(device), epoch_pixels=epoch_pixels,
@@ -177,10 +186,11 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if workers > 1 and output == "-":
             raise click.UsageError("--workers writes the file from its first rank: give -o OUT.dfield, not -")
         out_of_core = _out_of_core(kind, paths, epoch_pixels, workers)
-        if refine and (kind != "image" or out_of_core):
-            raise click.UsageError("--refine applies to an image read whole (not out of core: --epoch-pixels, "
-                                   "--workers, torchrun, EXR above 4096x4096)" if kind == "image" else
-                                   f"--refine applies to image input, not {kind}")
+        for name, value in (("--refine", refine), ("--target-psnr", target_psnr)):  # refinement: images read whole
+            if value and (kind != "image" or out_of_core):
+                raise click.UsageError(f"{name} applies to an image read whole (not out of core: --epoch-pixels, "
+                                       "--workers, torchrun, EXR above 4096x4096)" if kind == "image" else
+                                       f"{name} applies to image input, not {kind}")
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
@@ -213,6 +223,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     else:
         write_bytes_atomic(output, blob)
     _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path))
+    if target_psnr is not None and report.psnr < target_psnr:
+        note(f"--target-psnr {target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
+             "triangles after the refinement rounds (more --steps, or --refine N for more rounds, may reach it)", quiet)
     if report.total_bytes > input_bytes:
         note(f"the file ({report.total_bytes} bytes) is larger than the input ({input_bytes} bytes): on an input this "
              f"small the header and decoder weigh more than the data", quiet)
@@ -286,9 +299,10 @@ def _fit_callback(bar):
 def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
                       quiet):
     """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
-    from ..codec import encode_fem, encode_frames, encode_image, encode_samples
+    from ..codec import encode_fem, encode_frames, encode_image, encode_samples, refine_rounds
 
-    total_steps = settings.steps + settings.refine * (settings.refine_steps or max(1, settings.steps // 2))
+    rounds = refine_rounds(settings) if kind == "image" else 0
+    total_steps = settings.steps + rounds * (settings.refine_steps or max(1, settings.steps // 2))
     with progress_bar(total_steps, "fit", quiet) as bar:
         callback = _fit_callback(bar)
         if kind == "samples":

@@ -24,7 +24,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 TINY = ["--size", "32", "--steps", "4", "--batch-size", "512", "--render", "16", "--spp", "1", "--sweep-steps", "2",
         "--pixel-grid", "1", "--no-match-time", "-q"]
 FILLED = ("dfc", "hashgrid", "relu")
-"""Methods whose size follows the budget whatever it is: within 3 % of it (dfc: of its target)."""
+"""Methods whose size follows the budget whatever it is: within 3 % below it (dfc: within 10 %, its refinement
+aims at 97 % and the refit moves the features' bytes)."""
 
 
 @pytest.fixture(autouse=True)
@@ -38,7 +39,7 @@ def _check_budget(methods: dict, budget: int) -> None:
     for m, r in methods.items():
         assert isinstance(r["bytes"], int), m
         if m in FILLED:
-            assert 0.97 * budget <= r["bytes"] <= (1.03 if m == "dfc" else 1.0) * budget, (m, r["bytes"], budget)
+            assert (0.9 if m == "dfc" else 0.97) * budget <= r["bytes"] <= budget, (m, r["bytes"], budget)
             continue
         assert 0 < r["bytes"] <= budget, m
         if m == "raster" and r["config"]["raster"] != [32, 32]:
@@ -134,10 +135,10 @@ def test_rd_sweep_writes_curves_plots_and_every_budget(tmp_path):
     res = json.loads((out / "results.json").read_text())
     assert res["rd"] is True and res["budgets"] == budgets and len(res["runs"]) == 2
     assert set(res["curves"]) == {"dfc", "relu", "raster", "jpegxl", "jpeg2k"}
-    for point in res["curves"]["dfc"]:  # dfc's smallest file is far larger: recorded, not fatal
-        assert "too small" in point["failed"]
-    for record, budget in zip(res["runs"], budgets):
-        assert record["budget_bytes"] == budget and "dfc" in record["failed"]
+    small, large = res["curves"]["dfc"]  # dfc's smallest file is larger than 1500 B: recorded, not fatal
+    assert "too small" in small["failed"] and large["bytes"] <= 3000 and large["image_psnr"]["all"] > 0
+    for record, budget in zip(res["runs"], [1500, large["bytes"]]):  # the others get dfc's size where it has one
+        assert record["budget_bytes"] == budget and ("dfc" in record["failed"]) == (budget == 1500)
         _check_budget(record["methods"], budget)
     for m in ("relu", "raster", "jpegxl", "jpeg2k"):
         points = res["curves"][m]

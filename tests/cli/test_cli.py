@@ -174,6 +174,10 @@ def test_input_errors_are_one_line(encoded, tmp_path, capsys):
                    "--weight-bits", "1"], "--weight-bits"))
     cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o13.dfield",
                    "--refine", "1", "--epoch-pixels", "1000"], "--refine"))  # refinement needs the image whole
+    cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o14.dfield",
+                   "--target-psnr", "40", "--target-bytes", "9000"], "--target-psnr"))
+    cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o15.dfield",
+                   "--target-psnr", "40", "--epoch-pixels", "1000"], "--target-psnr"))
     for argv, match in cases:
         code, _, err = run(argv, capsys)
         assert_one_line_error(code, err, match)
