@@ -79,9 +79,9 @@ def counts(model: GroupModel) -> np.ndarray:
 
 def fit_model(values: np.ndarray) -> GroupModel:
     """A model of the grid (``d1``, ``d2`` in 48 steps, ``m`` in 15) that codes integers ``values`` in few bits:
-    the best of a coarse grid (every ``COARSE_STEP``-th decay), then the best of the full grid around it (within
-    ``COARSE_STEP`` − 1 steps of each decay and one of ``m``). The grid is thinned (one slope) when the values span
-    so much that even that search would be slow."""
+    the best of the whole grid when the values span at most a block of ``MAX_SEARCH`` table entries; else the best of
+    a coarse grid (every ``COARSE_STEP``-th decay), then of the full grid around it (within ``COARSE_STEP`` − 1 steps
+    of each decay and two of ``m``); one slope only when the values span so much that even that would be slow."""
     values = np.asarray(values, np.int64).ravel()
     lo, hi = min(0, int(values.min(initial=0))), max(0, int(values.max(initial=0)))
     if lo == hi:
@@ -89,6 +89,9 @@ def fit_model(values: np.ndarray) -> GroupModel:
     hist = np.bincount(values - lo, minlength=hi - lo + 1).astype(np.float64)
     search = _Search(hist, lo)
     m_grid = np.array(_M_GRID, np.int64)
+    if len(_D_GRID) ** 2 * len(m_grid) * (hi - lo + 1) <= MAX_SEARCH:
+        d1, d2, m = (g.ravel() for g in np.meshgrid(_D_GRID, _D_GRID, m_grid, indexing="ij"))
+        return GroupModel(lo, hi, *search.best(d1, d2, m))
     if len(_D_GRID) ** 2 * len(m_grid) * (hi - lo + 1) > 64 * MAX_SEARCH * COARSE_STEP**2:
         d1, d2, m = search.best(_D_GRID, _D_GRID, np.zeros_like(_D_GRID))
         return GroupModel(lo, hi, d1, d2, m)
@@ -97,7 +100,7 @@ def fit_model(values: np.ndarray) -> GroupModel:
     k = search.index(_D_GRID[i1], _D_GRID[i2], m_grid[im])
     r = COARSE_STEP - 1
     near = [np.arange(max(0, c - reach), min(size, c + reach + 1))
-            for c, reach, size in ((i1[k], r, len(_D_GRID)), (i2[k], r, len(_D_GRID)), (im[k], 1, len(m_grid)))]
+            for c, reach, size in ((i1[k], r, len(_D_GRID)), (i2[k], r, len(_D_GRID)), (im[k], 2, len(m_grid)))]
     j1, j2, jm = (g.ravel() for g in np.meshgrid(*near, indexing="ij"))
     d1, d2, m = search.best(_D_GRID[j1], _D_GRID[j2], m_grid[jm])
     return GroupModel(lo, hi, d1, d2, m)
