@@ -147,7 +147,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     decoded again, against the input (an image rendered at its size as dfc decode renders it, the pixels a curve
     crosses anti-aliased; FEM nodes; every frame of a sequence), for HDR images on tone-mapped values x/(1+x); for a
     sample set against the 10 % of the samples left out of the fit, and against --reference; for an image read out
-    of core (--epoch-pixels, --workers, torchrun, or an EXR above 4096 x 4096) at its held-out pixels. An existing OUTPUT is replaced, atomically, once the new file is complete.
+    of core (--epoch-pixels, --workers, torchrun, or an EXR above 4096 x 4096) at its held-out pixels. An existing
+    OUTPUT is replaced, atomically, once the new file is complete.
     """
     from ..codec import EncodeSettings
     from ..train.fit import DEFAULT_STEPS
@@ -175,8 +176,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                                   target_bytes=target_bytes, target_psnr=target_psnr, steps=steps or DEFAULT_STEPS,
-                                  batch_size=batch_size,
-                                  dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits,
+                                  batch_size=batch_size, dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits,
                                   weight_bits=weight_bits or None, feature_coding=feature_coding, refine=refine,
                                   loss=loss, seed=seed, device=check_device(device), epoch_pixels=epoch_pixels,
                                   workers=workers)
