@@ -147,6 +147,15 @@ def storage(settings) -> dict:
             "weight_bits": settings.weight_bits}
 
 
+def encode_model(model, settings, info: dict | None = None, pixel_size=None) -> tuple[bytes, dict[str, int]]:
+    """(``.dfield`` bytes, bytes per chunk) of ``model`` written with ``settings``' storage, the header's ``encoder``
+    record ``info`` and ``pixel_size``. The mesh was validated once, when rate control built it
+    (``dfc.rate.build_mesh``), and its bytes decode to it exactly: it is not validated again."""
+    from .io.container import encode_dfield
+
+    return encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True, **storage(settings))
+
+
 def encoder_info(settings, source: str, extra: dict) -> dict:
     """The header's ``encoder`` record: software, curves source, every setting (a dataclass) and ``extra``."""
     return {"software": f"dfc {__version__}", "source": source, **asdict(settings), **extra}
@@ -204,7 +213,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                                                   "hdr": float(pixels.max()) > 1.0,
                                                   **({"curves": curves_info} if curves_info else {})})
     model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, mesh=mesh,
-                                   residual=residual, min_area=0.25, size_of=_size_of(settings, info, (1.0, 1.0)),
+                                   residual=residual, min_area=0.25,
+                                   size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0))[0]),
                                    quality=lambda m: scale.psnr(pixels, render(m, w, h, edge_spp=EDGE_SPP)),
                                    data_range=scale.data_range, tonemap=scale.tonemap)
     seconds["mesh_s"] += sizing_s
@@ -480,18 +490,6 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     return model
 
 
-def _size_of(settings: EncodeSettings, info: dict, pixel_size=None):
-    """``size_of(model) -> int``: bytes of ``model``'s file as ``_finish`` writes it."""
-    from .io.container import encode_dfield
-
-    def size_of(model) -> int:
-        blob, _ = encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True,
-                                **storage(settings))
-        return len(blob)
-
-    return size_of
-
-
 def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) -> np.ndarray:
     """(M,) float64 squared error of ``model`` at points xy (M, 2) against values (M, C), summed over channels."""
     pred = values_at(model, xy, device=settings.device, block=QUERY_BLOCK)
@@ -502,12 +500,8 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
             truth: Callable[[object], tuple[np.ndarray, np.ndarray]], scale: QualityScale, pixel_size=None):
     """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth`` on ``scale``
     (``pixel_size``: of a raster input, for the header)."""
-    from .io.container import encode_dfield
-
     clock = time.perf_counter()
-    # the mesh was validated once, when rate control built it (``dfc.rate.build_mesh``); its bytes decode to it exactly
-    blob, sizes = encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True,
-                                **storage(settings))
+    blob, sizes = encode_model(model, settings, info, pixel_size)
     decoded = loads(blob, device=settings.device, validate_mesh=False)
     seconds["write_s"] = time.perf_counter() - clock
     clock = time.perf_counter()

@@ -151,16 +151,11 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int,
                        layers=settings.layers)
     with torch.no_grad():
         model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
-    return (size_of or _bare_size(settings))(model), mesh
+    if size_of is None:
+        from .codec import encode_model
 
-
-def _bare_size(settings):
-    """``size_of(model) -> bytes`` of the file written with ``settings``' storage and no ``encoder`` record."""
-    from .codec import storage
-    from .io.container import encode_dfield
-    from .io.dfield import to_contents
-
-    return lambda model: len(encode_dfield(to_contents(model), mesh_validated=True, **storage(settings))[0])
+        return len(encode_model(model, settings)[0]), mesh
+    return size_of(model), mesh
 
 
 def mesh_for_bytes(curves: Curves, settings, channels: list[str], size_of=None) -> Mesh:

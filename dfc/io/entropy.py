@@ -89,10 +89,11 @@ def fit_model(values: np.ndarray) -> GroupModel:
     hist = np.bincount(values - lo, minlength=hi - lo + 1).astype(np.float64)
     search = _Search(hist, lo)
     m_grid = np.array(_M_GRID, np.int64)
-    if len(_D_GRID) ** 2 * len(m_grid) * (hi - lo + 1) <= MAX_SEARCH:
+    table = len(_D_GRID) ** 2 * len(m_grid) * (hi - lo + 1)  # entries of the whole grid's search
+    if table <= MAX_SEARCH:
         d1, d2, m = (g.ravel() for g in np.meshgrid(_D_GRID, _D_GRID, m_grid, indexing="ij"))
         return GroupModel(lo, hi, *search.best(d1, d2, m))
-    if len(_D_GRID) ** 2 * len(m_grid) * (hi - lo + 1) > 64 * MAX_SEARCH * COARSE_STEP**2:
+    if table > 64 * MAX_SEARCH * COARSE_STEP**2:
         d1, d2, m = search.best(_D_GRID, _D_GRID, np.zeros_like(_D_GRID))
         return GroupModel(lo, hi, d1, d2, m)
     coarse = np.arange(0, len(_D_GRID), COARSE_STEP)
