@@ -27,10 +27,11 @@ TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
 REFINE_SHARE = 0.5
 """A refinement round splits the triangles holding this share of the fit's squared error (at most a set number)."""
-NOISY_SAMPLES_PER_TRIANGLE = 1000
-"""Sample sets without a mesh-size option get about one triangle per this many samples (at most
-``DEFAULT_TRIANGLES``, at least what the curves force): a finer mesh fits the noise of Monte Carlo samples
-(on the pepper at 500² and 11 spp, 2.75M samples on 1,746 triangles denoise 30×)."""
+NOISY_SAMPLES_PER_TRIANGLE = 500
+"""Sample sets without a mesh-size option get the triangles their curves force plus about one per this many
+samples (at most ``DEFAULT_TRIANGLES``) spent away from the curves: a finer mesh fits the noise of Monte Carlo
+samples, and a mesh of the forced triangles alone has no interior vertices (long slivers between the curves) — on the
+pepper at 128² and 11 spp such a mesh denoised 1.75×, this one 13× (README "Rate and quality levers")."""
 PIXELS_PER_TRIANGLE = 16
 """Images without a mesh-size option get at most one triangle per this many pixels (and at most
 ``DEFAULT_TRIANGLES``, which a 256 × 256 image already reaches): a 64 × 64 image gets 256, a 1 × 1 image the two
@@ -190,10 +191,10 @@ def _mesh_and_cap(curves: Curves, settings, channels: list[str], size_of) -> tup
 
 
 def sample_mesh_size(curves: Curves, settings, n_samples: int):
-    """(settings, mesh) for a sample set: ``settings`` with ``max_triangles`` following the sample count
-    (``NOISY_SAMPLES_PER_TRIANGLE``) and the decoder-view mesh built with them, when no mesh-size option is set;
-    else ``settings`` unchanged and None."""
-    return _counted_mesh(curves, settings, n_samples // NOISY_SAMPLES_PER_TRIANGLE)
+    """(settings, mesh) for a sample set: ``settings`` with ``max_triangles`` = the triangles the curves force plus
+    one per ``NOISY_SAMPLES_PER_TRIANGLE`` samples (at most ``DEFAULT_TRIANGLES``), and the decoder-view mesh built
+    with them, when no mesh-size option is set; else ``settings`` unchanged and None."""
+    return _counted_mesh(curves, settings, n_samples // NOISY_SAMPLES_PER_TRIANGLE, on_top=True)
 
 
 def image_mesh_size(curves: Curves, settings, n_pixels: int):
@@ -221,16 +222,28 @@ def decoder_hidden(n_values: int, budget: float | None = None, *, inputs: int = 
     return width
 
 
-def _counted_mesh(curves: Curves, settings, cap: int):
+def _counted_mesh(curves: Curves, settings, cap: int, on_top: bool = False):
     """(settings with ``max_triangles = cap`` clamped to 2 .. ``DEFAULT_TRIANGLES``, and the decoder-view mesh), raising
-    the cap to what the curves force; (settings, None) when a mesh-size option is set."""
+    the cap to what the curves force (``on_top``: adding the cap to it); (settings, None) when a mesh-size option
+    is set."""
     if any(v is not None for v in (settings.max_triangles, settings.max_area, settings.edge_length,
                                    settings.target_bytes)):
         return settings, None
     cap = min(DEFAULT_TRIANGLES, max(2, cap))
+    if on_top:
+        cap += _forced_triangles(curves, settings)
     while True:  # the first refusal counts vertices only; the curves' apexes may need a few more triangles
         sized = replace(settings, max_triangles=cap)
         try:
             return sized, build_mesh(curves, sized)
         except TriangleBudgetError as e:
             cap = max(e.needed, cap + 1)
+
+
+def _forced_triangles(curves: Curves, settings) -> int:
+    """Triangles the curves' vertices alone need (their apexes may add a few), 0 for a domain without curves."""
+    try:
+        build_mesh(curves, replace(settings, max_triangles=2))
+    except TriangleBudgetError as e:
+        return e.needed
+    return 0

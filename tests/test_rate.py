@@ -12,24 +12,38 @@ def scene():
     return sample_scene()
 
 
-def test_sample_sets_size_their_mesh_by_the_sample_count(scene):
+def test_sample_sets_size_their_mesh_by_the_sample_count_on_top_of_the_curves(scene):
+    from dfc.errors import TriangleBudgetError
     from dfc.geometry.triangulate import triangulate
     from dfc.rate import NOISY_SAMPLES_PER_TRIANGLE, sample_mesh_size
 
     curves = scene.curves
-    floor = triangulate(curves, max_triangles=None).n_triangles  # at least what the curves force
-    many, _ = sample_mesh_size(curves, EncodeSettings(), 10**9)
-    assert many.max_triangles == 2000  # capped at the default mesh
+    with pytest.raises(TriangleBudgetError) as refused:
+        triangulate(curves, max_triangles=2)
+    forced = refused.value.needed  # what the curves' vertices alone need
     few, few_mesh = sample_mesh_size(curves, EncodeSettings(), 10)
-    assert 2 < few.max_triangles <= floor
-    assert triangulate(curves, max_triangles=few.max_triangles).n_triangles <= few.max_triangles
+    assert few.max_triangles >= forced + 2
     assert few_mesh.n_triangles <= few.max_triangles  # the mesh the fit runs on, built once
     n = 300 * NOISY_SAMPLES_PER_TRIANGLE
-    middle, _ = sample_mesh_size(curves, EncodeSettings(), n)
-    assert middle.max_triangles == max(300, few.max_triangles)
+    middle, middle_mesh = sample_mesh_size(curves, EncodeSettings(), n)
+    assert middle.max_triangles >= forced + 300
+    many, _ = sample_mesh_size(curves, EncodeSettings(), 10**9)
+    assert many.max_triangles - middle.max_triangles == 2000 - 300  # the samples' share is capped at the default
+    # the samples' triangles are spent away from the curves: interior vertices, not the curves' slivers alone
+    assert middle_mesh.n_vertices > few_mesh.n_vertices + 100
     given = EncodeSettings(max_area=5.0)
     kept, no_mesh = sample_mesh_size(curves, given, 10)
     assert kept is given and no_mesh is None  # an explicit mesh size wins
+
+
+def test_sample_sets_cut_curved_pieces_shorter_the_more_samples_they_have():
+    from dfc.codec import sample_piece_length
+
+    domain = (0.0, 0.0, 2.0, 1.0)
+    lengths = [sample_piece_length(domain, n) for n in (0, 10**3, 10**5, 10**7)]
+    assert all(a > b for a, b in zip(lengths[1:], lengths[2:]))
+    assert lengths[2] / lengths[3] == pytest.approx(100 ** 0.25)
+    assert lengths[0] == pytest.approx(sample_piece_length((0.0, 0.0, 1.0, 2.0), 1))  # the longer side counts
 
 
 def test_byte_targets_size_the_file_and_report_real_mesh_errors(scene, monkeypatch):

@@ -18,9 +18,8 @@ codec's own mesh sizing, ``--steps``, ``--batch-size`` and ``--seed``): the file
 centres, against the reference — the held-out figure — beside the PSNR the encoder itself reports
 (``EncodeReport.psnr``, measured on the samples).
 
-Curved pieces are cut as ``dfc encode SAMPLES.npz`` cuts them (``dfc.geometry.curves.split_pieces``), into parts at most
-``dfc.codec.SAMPLE_PIECE_REL`` = 1/64 of the domain's long side (``--piece-length`` overrides, in pixels); the
-mesh size is ``--max-triangles``.
+Curved pieces are cut as ``dfc encode SAMPLES.npz`` cuts the largest sample set (``dfc.codec.sample_piece_length``
+of ``max(spp)`` walks per pixel; ``--piece-length`` overrides, in pixels); the mesh size is ``--max-triangles``.
 A curved piece lies in one triangle whose sliver between chord and curve carries a single curve feature, so
 a long piece leaves a wide band along the curve with little freedom; on the shipped pepper at 128², cutting
 at 4 px roughly halves the error within 2 px of the curves.
@@ -74,7 +73,7 @@ def _odd(ctx, param, value):
               help="Mesh size of the fitted field.")
 @click.option("--piece-length", type=click.FloatRange(min=0.0), default=None,
               help="Cut curved pieces longer than this many pixels before meshing (0: keep them)  "
-                   "[default: 1/64 of the long side].")
+                   "[default: as dfc encode cuts the largest sample set].")
 @click.option("--qat/--no-qat", default=False, show_default=True,
               help="Quantisation-aware final fit steps (8-bit features, as a .dfield file would store).")
 @click.option("--lr", type=click.FloatRange(min=0.0, min_open=True), default=5e-3, show_default=True,
@@ -102,7 +101,7 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
     """Variance reduction of a dfc fit over the raw mean of walk-on-spheres samples, per sample count."""
     import torch
 
-    from ...codec import SAMPLE_PIECE_REL
+    from ...codec import sample_piece_length
     from ...geometry.curves import read_curves, split_pieces
     from ...geometry.pixels import edge_pixels
     from ...geometry.triangulate import triangulate
@@ -130,7 +129,7 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
     wos_s = time.perf_counter() - clock
     pixel = (scene.domain[2] - scene.domain[0]) / width
     if piece_length is None:
-        piece_length = max(width, height) * SAMPLE_PIECE_REL
+        piece_length = sample_piece_length(scene.domain, max(spp_list) * width * height) / pixel
     mesh = triangulate(split_pieces(curves, piece_length * pixel) if piece_length > 0 else curves,
                        max_triangles=max_triangles)
     clean = ~edge_pixels(mesh, height, width)
