@@ -24,8 +24,8 @@ from .rate import DECODER_SHARE, decoder_hidden, image_mesh_size, sample_mesh_si
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
-__all__ = ["EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem", "encode_frames",
-           "encode_image", "encode_samples", "encoder_info", "heldout_split", "load", "loads",
+__all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem", "encode_frames",
+           "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split", "load", "loads",
            "sample_piece_length"]
 
 QUERY_BLOCK = 1 << 18
@@ -43,7 +43,11 @@ HOLDOUT_FRACTION = 0.1
 of the fit and the file's PSNR is measured against them: against the samples it was fitted to, a fit that follows
 their noise would look better the worse it denoises."""
 TARGET_PSNR_ROUNDS = 4
-"""Refinement rounds an image encode runs at most to reach ``EncodeSettings.target_psnr``."""
+"""Refinement rounds an image or FEM encode runs at most to reach ``EncodeSettings.target_psnr``."""
+FEM_TARGET_PSNR = 50.0
+"""A FEM encode without a mesh-size option, target or ``refine`` aims at this PSNR at the nodes (dB, against the
+values' span; up to ``TARGET_PSNR_ROUNDS`` refinement rounds) instead of a fixed triangle count: simulation data asks
+for more triangles the more wavelengths or layers it holds (README "Rate and quality levers")."""
 HOLDOUT_MAX = 1 << 18
 HOLDOUT_MIN_SAMPLES = 100
 
@@ -59,8 +63,8 @@ class EncodeSettings:
     rounds of error-driven refinement (``_refine``: each splits the triangles holding ``dfc.rate.REFINE_SHARE`` of
     the fit's squared error, at most ``refine_fraction`` of the triangle count, or under a byte target as many as it
     still pays for, and refits for ``refine_steps``, default half of ``steps``, from the previous fit; images read
-    whole; None: one round under a byte target, up to ``TARGET_PSNR_ROUNDS`` under ``target_psnr`` (stopping once
-    the fit's 1× PSNR, anti-aliased, reaches it), else none). Fit
+    whole and FEM solutions; None: one round under a byte target, up to ``TARGET_PSNR_ROUNDS`` under ``target_psnr``
+    (stopping once the fit's 1× PSNR, anti-aliased, or nodal PSNR reaches it), else none). Fit
     (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
     ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks,
     recorded). Storage (spec/dfield.md): ``feature_bits``, ``feature_coding`` ("predicted": ``FEAC``, "plain": the
@@ -97,7 +101,9 @@ class EncodeReport:
     """What an encode measured. ``psnr`` is of the written file decoded, against the input (for a sample set: the
     ``heldout`` samples left out of the fit; for an image read out of core: its ``heldout`` held-out pixels), with
     ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``psnr_reference``:
-    against the exact values given as ``reference``, on the same scale (sample sets), else None."""
+    against the exact values given as ``reference``, on the same scale (sample sets), else None. ``target_psnr``: the
+    PSNR the encode aimed at (``EncodeSettings.target_psnr``, or ``FEM_TARGET_PSNR`` by default for a FEM solution),
+    else None."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -111,6 +117,7 @@ class EncodeReport:
     tonemapped: bool = False
     heldout: int = 0
     psnr_reference: float | None = None
+    target_psnr: float | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -127,12 +134,20 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
 
 
 def refine_rounds(settings) -> int:
-    """Rounds of refinement of an image encode read whole: ``settings.refine``, else (None) one under a byte target
+    """Rounds of refinement of an image encode read whole or a FEM encode: ``settings.refine``, else (None) one under a byte target
     (it fills the target: ``dfc.rate.fill_points``), at most ``TARGET_PSNR_ROUNDS`` under a PSNR target, and none
     without either."""
     if settings.refine is not None:
         return settings.refine
     return 1 if settings.target_bytes else TARGET_PSNR_ROUNDS if settings.target_psnr is not None else 0
+
+
+def fem_settings(settings: EncodeSettings) -> EncodeSettings:
+    """``settings`` of a FEM encode: aiming at ``FEM_TARGET_PSNR`` when they set no mesh size, target or ``refine``."""
+    if settings.refine is None and all(getattr(settings, k) is None for k in (
+            "max_triangles", "max_area", "edge_length", "target_bytes", "target_psnr")):
+        return replace(settings, target_psnr=FEM_TARGET_PSNR)
+    return settings
 
 
 def _image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> EncodeSettings:
@@ -379,25 +394,38 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     ("linear" or "nearest", ``dfc.physics.fem.interpolate``: never across a barrier). ``report.psnr`` is of the
     decoded file at the nodes (each read just inside its first element, ``dfc.physics.fem.node_points``) against the
     nodal values, data range the values' span over all channels; ``bits_per_pixel`` counts bits per node.
+    Refinement (``refine_rounds``: ``target_bytes``, ``target_psnr`` or ``refine``) splits where the error at those
+    training points is largest, never below the median element's area (the data holds no finer detail), and
+    ``target_psnr`` is of the nodal PSNR; without a mesh-size option, target or ``refine`` the encode aims at
+    ``FEM_TARGET_PSNR``.
     """
+    from .geometry.plane import triangle_areas
     from .io.samples import SampleSet
     from .physics.fem import fem_curves, node_points, sample_fem
     from .train.fit import fit_samples
 
-    settings, fit_kw = _physical(settings or EncodeSettings())
+    settings, fit_kw = _physical(fem_settings(settings or EncodeSettings()))
+    settings = replace(settings, refine=refine_rounds(settings))
     curves = fem_curves(solution, curves)
     xy, values = sample_fem(solution, curves, mode=sampling, seed=settings.seed)
     samples = SampleSet(xy, values, curves.domain, list(solution.channels))
     node_xy = node_points(solution)[0]
     nodal = solution.values[np.unique(solution.triangles)]
     scale = quality_scale(nodal, physical=True)
-    model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, list(solution.channels), callback,
-                                   data_range=scale.data_range, tonemap=False, **fit_kw)
     info = encoder_info(settings, curves.source, {"input": f"FEM {solution.source or 'mesh'}: {len(nodal)} nodes, "
                                                            f"{len(solution.triangles)} triangles",
                                                   "nodes": len(nodal), "fem_sampling": sampling})
-    return _finish(model, settings, info, seconds, len(nodal),
-                   lambda m: (nodal, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)), scale)
+
+    def at_nodes(m):
+        return nodal, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)
+
+    model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, list(solution.channels), callback,
+                                   residual=lambda m: (xy, _error(m, xy, values, settings)),
+                                   min_area=float(np.median(triangle_areas(solution.points[solution.triangles]))),
+                                   size_of=lambda m: len(encode_model(m, settings, info)[0]),
+                                   quality=lambda m: scale.psnr(*at_nodes(m)),
+                                   data_range=scale.data_range, tonemap=False, **fit_kw)
+    return _finish(model, settings, info, seconds, len(nodal), at_nodes, scale)
 
 
 def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
@@ -520,6 +548,6 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
         chunk_bytes=sizes, total_bytes=len(blob), bits_per_pixel=8.0 * len(blob) / n_pixels,
         psnr=scale.psnr(reference, test), data_range=scale.data_range,
         n_vertices=mesh.n_vertices, n_triangles=mesh.n_triangles, n_features=decoded.field.n_features,
-        seconds=seconds, tonemapped=scale.tonemap,
+        seconds=seconds, tonemapped=scale.tonemap, target_psnr=settings.target_psnr,
     )
     return blob, report

@@ -89,8 +89,9 @@ def _curves_arg(ctx, param, value):
 @click.option("--edge-length", type=click.FloatRange(min=0, min_open=True), help="Target edge length (domain units).")
 @click.option("--target-bytes", type=click.IntRange(min=1), help="Size the mesh so that the file is at most this big.")
 @click.option("--target-psnr", type=click.FloatRange(min=0, min_open=True), metavar="DB",
-              help="Image input read whole: refine the mesh (up to 4 rounds, each refitting for half the steps) until "
-                   "the file's PSNR, as the summary measures it, reaches DB; the summary says when it does not.")
+              help="Image input read whole or FEM input: refine the mesh (up to 4 rounds, each refitting for half the "
+                   "steps) until the file's PSNR, as the summary measures it (FEM: at the nodes), reaches DB; the "
+                   "summary says when it does not.")
 @click.option("--steps", type=click.IntRange(min=1), default=None, help="Optimiser steps  [default: 1000].")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
@@ -103,7 +104,8 @@ def _curves_arg(ctx, param, value):
 @click.option("--feature-coding", type=click.Choice(["predicted", "plain"]), default="predicted", show_default=True,
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
 @click.option("--refine", type=click.IntRange(0, 16),
-              help="Image input read whole: rounds of error-driven refinement after the fit (split the triangles with "
+              help="Image input read whole or FEM input: rounds of error-driven refinement after the fit (split the "
+                   "triangles with "
                    "the largest error, refit for half the steps). Without --target-bytes each round adds triangles, so "
                    "the file grows; with it a round adds as many as the target still pays for  [default: 1 with "
                    "--target-bytes, else 0].")
@@ -186,11 +188,11 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if workers > 1 and output == "-":
             raise click.UsageError("--workers writes the file from its first rank: give -o OUT.dfield, not -")
         out_of_core = _out_of_core(kind, paths, epoch_pixels, workers)
-        for name, value in (("--refine", refine), ("--target-psnr", target_psnr)):  # refinement: images read whole
-            if value and (kind != "image" or out_of_core):
+        for name, value in (("--refine", refine), ("--target-psnr", target_psnr)):  # images read whole, FEM
+            if value and (kind not in REFINED or out_of_core):
                 raise click.UsageError(f"{name} applies to an image read whole (not out of core: --epoch-pixels, "
                                        "--workers, torchrun, EXR above 4096x4096)" if kind == "image" else
-                                       f"{name} applies to image input, not {kind}")
+                                       f"{name} applies to image or FEM input, not {kind}")
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
@@ -223,8 +225,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     else:
         write_bytes_atomic(output, blob)
     _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path))
-    if target_psnr is not None and report.psnr < target_psnr:
-        note(f"--target-psnr {target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
+    if report.target_psnr is not None and report.psnr < report.target_psnr:
+        what = "--target-psnr" if target_psnr is not None else "the default FEM target of"
+        note(f"{what} {report.target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
              "triangles after the refinement rounds (more --steps, or --refine N for more rounds, may reach it)", quiet)
     if report.total_bytes > input_bytes:
         note(f"the file ({report.total_bytes} bytes) is larger than the input ({input_bytes} bytes): on an input this "
@@ -278,6 +281,8 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
                      f"on): {report.psnr:.2f} dB ({scale})")
     else:
         lines.append(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB ({scale})")
+    if report.target_psnr is not None:
+        lines[-1] += f"; target {report.target_psnr:g} dB"
     if report.psnr_reference is not None:
         lines.append(f"PSNR of the decoded file against the reference {reference_path}: {report.psnr_reference:.2f} dB "
                      f"({scale})")
@@ -299,9 +304,11 @@ def _fit_callback(bar):
 def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
                       quiet):
     """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
-    from ..codec import encode_fem, encode_frames, encode_image, encode_samples, refine_rounds
+    from ..codec import encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds
 
-    rounds = refine_rounds(settings) if kind == "image" else 0
+    if kind == "fem":
+        settings = fem_settings(settings)
+    rounds = refine_rounds(settings) if kind in REFINED else 0
     total_steps = settings.steps + rounds * (settings.refine_steps or max(1, settings.steps // 2))
     with progress_bar(total_steps, "fit", quiet) as bar:
         callback = _fit_callback(bar)
@@ -321,6 +328,8 @@ def _gpus() -> int:
     return torch.cuda.device_count()
 
 
+REFINED = ("image", "fem")
+"""Input kinds whose encode refines the mesh (``--refine``, ``--target-psnr``, filling ``--target-bytes``)."""
 IN_MEMORY_PIXELS = 1 << 24
 """Image inputs with more pixels than this (4096²) are encoded out of core (``dfc.codec.encode_bands``)."""
 

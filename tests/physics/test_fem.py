@@ -3,6 +3,7 @@ leakage across a barrier on a small Helmholtz solve, and the error cases."""
 
 import importlib.util
 import json
+from dataclasses import replace
 
 import meshio
 import numpy as np
@@ -101,6 +102,34 @@ def test_meshio_file_through_the_cli(tmp_path, capsys, one_thread):
         left, right = model(torch.tensor([[0.499, 0.5], [0.501, 0.5]], dtype=torch.float64))[:, 0].tolist()
     assert left == pytest.approx(0.25, abs=0.03) and right == pytest.approx(0.75, abs=0.03)
     assert read_fem(path, ["v"]).channels == ["v.re", "v.im"]  # a .re/.im pair is selected by its stem
+
+
+def _wave(n: int = 16, k: float = 18.0):
+    """A FEM solution on the unit square's n × n grid: a wave along x (k rad per unit) whose phase jumps by π across
+    the barrier x = 0.5 — a signal whose error concentrates where the grid of a coarse mesh cannot follow it."""
+    pts, tris = grid_mesh(n)
+    u = np.sin(k * pts[:, 0]) * (1.0 + 0.3 * pts[:, 1])
+    return from_meshio(meshio.Mesh(pts, [("triangle", tris)], point_data={"u": u}))
+
+
+def test_fem_refinement_reaches_a_psnr_target_by_splitting(barrier, one_thread):
+    coarse = EncodeSettings(max_triangles=60, steps=200, batch_size=2048)
+    _, plain = encode_fem(_wave(), barrier, coarse)
+    blob, aimed = encode_fem(_wave(), barrier, replace(coarse, target_psnr=plain.psnr + 6.0))
+    assert aimed.target_psnr == plain.psnr + 6.0 and plain.target_psnr is None
+    assert aimed.n_triangles > plain.n_triangles  # refinement added triangles ...
+    assert aimed.psnr > plain.psnr + 3.0  # ... and they bought quality at the nodes
+    assert loads(blob).header["encoder"]["target_psnr"] == aimed.target_psnr
+
+
+def test_fem_default_encode_aims_at_a_stated_quality(barrier):
+    from dfc.codec import FEM_TARGET_PSNR, fem_settings
+
+    aimed = fem_settings(EncodeSettings())
+    assert aimed.target_psnr == FEM_TARGET_PSNR
+    for given in (EncodeSettings(max_triangles=100), EncodeSettings(target_bytes=9000), EncodeSettings(refine=0),
+                  EncodeSettings(target_psnr=30.0)):
+        assert fem_settings(given) is given  # any size, target or refine given: the user's choice stands
 
 
 def _make_helmholtz():
