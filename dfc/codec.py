@@ -8,6 +8,7 @@ written bytes decoded again (``_finish``), so the file decodes to what it report
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
@@ -26,7 +27,7 @@ from .train.fit import DEFAULT_STEPS
 
 __all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem", "encode_frames",
            "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split", "load", "loads",
-           "sample_piece_length"]
+           "sample_piece_length", "sample_steps"]
 
 QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
@@ -37,6 +38,12 @@ carries one curve feature, so long pieces leave a wide band along the curve with
 triangles whose features see few samples each. On the pepper at 11 spp (``dfc benchmark wos --encode``) 1/32 of the
 side beat 1/64 at 128² (180k samples: 12.8× against 5.4× less error variance than the raw mean, in 30 % fewer bytes)
 and 1/64 beat 1/32 at 500² (2.75M samples: 39× against 33×); n^¼ passes through both."""
+
+SAMPLE_PASSES = 12
+"""``dfc encode`` of a sample set without ``--steps`` runs enough steps for this many passes over its samples, at
+least ``DEFAULT_STEPS`` (``sample_steps``): 2.75M walk-on-spheres samples of the pepper at 500² and 11 spp, fitted
+for 1000 steps (6 passes), denoised 26× or 40× depending on the seed alone; 1,813 steps (12 passes) gave 39× and
+41×."""
 
 HOLDOUT_FRACTION = 0.1
 """Sample sets: this share of the samples (at most ``HOLDOUT_MAX``, none below ``HOLDOUT_MIN_SAMPLES``) is left out
@@ -328,7 +335,8 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     without a mesh-size setting the mesh follows the sample count
     (``dfc.rate.sample_mesh_size``). A random ``HOLDOUT_FRACTION`` of the samples (``heldout_split``) is left out of
     the fit: ``report.psnr`` is of the decoded file at their positions against their values (``report.heldout``
-    of them). ``reference`` : optional (H, W, C) exact values at the pixel centres of a W × H grid over the
+    of them). ``settings.steps`` is used as given (``dfc encode`` without ``--steps`` gives ``sample_steps``).
+    ``reference`` : optional (H, W, C) exact values at the pixel centres of a W × H grid over the
     domain (``dfc wos --reference``); ``report.psnr_reference`` is of the file rendered there against them.
     ``bits_per_pixel`` counts bits per sample.
     """
@@ -374,6 +382,12 @@ def sample_piece_length(domain, n_samples: int) -> float:
     """Longest curved piece (domain units) a sample set of ``n_samples`` meshes with (``SAMPLE_PIECES``)."""
     x0, y0, x1, y1 = domain
     return max(x1 - x0, y1 - y0) / (SAMPLE_PIECES * max(1, n_samples) ** 0.25)
+
+
+def sample_steps(n_samples: int, batch_size: int) -> int:
+    """Fit steps of a sample set of ``n_samples`` when none are given: ``SAMPLE_PASSES`` passes over them with
+    ``batch_size`` samples per step, at least ``DEFAULT_STEPS``."""
+    return max(DEFAULT_STEPS, math.ceil(SAMPLE_PASSES * n_samples / batch_size))
 
 
 def heldout_split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -36,6 +36,15 @@ def test_sample_sets_size_their_mesh_by_the_sample_count_on_top_of_the_curves(sc
     assert kept is given and no_mesh is None  # an explicit mesh size wins
 
 
+def test_sample_sets_fit_for_a_number_of_passes_over_their_samples():
+    from dfc.codec import SAMPLE_PASSES, sample_steps
+    from dfc.train.fit import DEFAULT_STEPS
+
+    assert sample_steps(10, 16384) == DEFAULT_STEPS  # small sets: the default
+    assert sample_steps(10**7, 16384) == -(-SAMPLE_PASSES * 10**7 // 16384)
+    assert sample_steps(10**7, 16384) * 16384 >= SAMPLE_PASSES * 10**7 > (sample_steps(10**7, 16384) - 1) * 16384
+
+
 def test_sample_sets_cut_curved_pieces_shorter_the_more_samples_they_have():
     from dfc.codec import sample_piece_length
 

@@ -92,7 +92,8 @@ def _curves_arg(ctx, param, value):
               help="Image input read whole or FEM input: refine the mesh (up to 4 rounds, each refitting for half the "
                    "steps) until the file's PSNR, as the summary measures it (FEM: at the nodes), reaches DB; the "
                    "summary says when it does not.")
-@click.option("--steps", type=click.IntRange(min=1), default=None, help="Optimiser steps  [default: 1000].")
+@click.option("--steps", type=click.IntRange(min=1), default=None,
+              help="Optimiser steps  [default: 1000; a sample set: 12 passes over its samples, at least 1000].")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
 @click.option("--feature-bits", type=click.IntRange(1, 16), default=8, show_default=True,
@@ -152,7 +153,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     of core (--epoch-pixels, --workers, torchrun, or an EXR above 4096 x 4096) at its held-out pixels. An existing
     OUTPUT is replaced, atomically, once the new file is complete.
     """
-    from ..codec import EncodeSettings
+    from ..codec import EncodeSettings, sample_steps
     from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
@@ -200,6 +201,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if not out_of_core:
             signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
                                  fields.split(",") if fields else None)
+            if kind == "samples" and steps is None:
+                settings = replace(settings, steps=sample_steps(len(signal), batch_size))
         if curves_path == "auto":
             curves, curves_info = _auto_curves(signal)
         else:

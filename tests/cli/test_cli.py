@@ -217,6 +217,7 @@ def test_help_for_every_command(capsys):
 
 
 def test_encode_a_sample_set(tmp_path, capsys):
+    from dfc.codec import sample_steps
     from dfc.io.samples import SampleSet, write_samples
 
     scene = sample_scene()
@@ -240,3 +241,8 @@ def test_encode_a_sample_set(tmp_path, capsys):
     code, _, err = run(["encode", tmp_path / "s.npz", "--curves", SAMPLES / "sample.json", "-o", out,
                         "--channels", "R"], capsys)
     assert_one_line_error(code, err, "--channels")
+    # without --steps a sample set runs SAMPLE_PASSES passes over its samples (here more than the default 1000)
+    code, _, err = run(["encode", tmp_path / "s.npz", "--curves", SAMPLES / "sample.json", "-o", out,
+                        "--batch-size", "200", "--max-triangles", "300", "-q"], capsys)
+    assert code == 0, err
+    assert load(out).header["encoder"]["steps"] == sample_steps(20000, 200) == 1200
