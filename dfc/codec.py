@@ -17,6 +17,7 @@ import numpy as np
 
 from . import __version__
 from .errors import InputError
+from .field.quantize import DEFAULT_FEATURE_BITS
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import load, loads, to_contents
 from .metrics import QualityScale, quality_scale
@@ -91,7 +92,7 @@ class EncodeSettings:
     dim: int = 5
     hidden: int = 64
     layers: int = 2
-    feature_bits: int = 8
+    feature_bits: int = DEFAULT_FEATURE_BITS
     feature_coding: str = "predicted"
     weight_bits: int | None = 8
     mesh_bits: int = 20

@@ -96,8 +96,8 @@ def _curves_arg(ctx, param, value):
               help="Optimiser steps  [default: 1000; a sample set: 12 passes over its samples, at least 1000].")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
-@click.option("--feature-bits", type=click.IntRange(1, 16), default=8, show_default=True,
-              help="Bits per stored feature value.")
+@click.option("--feature-bits", type=click.IntRange(1, 16), default=None,
+              help="Bits per stored feature value  [default: 10].")
 @click.option("--mesh-bits", type=click.IntRange(1, 23), default=20, show_default=True,
               help="Draco quantisation bits of the vertex positions.")
 @click.option("--weight-bits", type=click.IntRange(0, 16), default=8, show_default=True, callback=_weight_bits,
@@ -154,6 +154,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     OUTPUT is replaced, atomically, once the new file is complete.
     """
     from ..codec import EncodeSettings, sample_steps
+    from ..field.quantize import DEFAULT_FEATURE_BITS
     from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
@@ -179,7 +180,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                                   target_bytes=target_bytes, target_psnr=target_psnr, steps=steps or DEFAULT_STEPS,
-                                  batch_size=batch_size, dim=dim, feature_bits=feature_bits, mesh_bits=mesh_bits,
+                                  batch_size=batch_size, dim=dim, feature_bits=feature_bits or DEFAULT_FEATURE_BITS, mesh_bits=mesh_bits,
                                   weight_bits=weight_bits or None, feature_coding=feature_coding, refine=refine,
                                   loss=loss, seed=seed, device=check_device(device), epoch_pixels=epoch_pixels,
                                   workers=workers)

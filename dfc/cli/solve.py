@@ -28,8 +28,8 @@ from .options import (
 @click.option("--lr", type=click.FloatRange(min=0, min_open=True), default=None,
               help="Adam's starting learning rate  [default: 0.01].")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
-@click.option("--feature-bits", type=click.IntRange(1, 16), default=8, show_default=True,
-              help="Bits per stored feature value.")
+@click.option("--feature-bits", type=click.IntRange(1, 16), default=None,
+              help="Bits per stored feature value  [default: 10].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
 @click.option("--device", default="cpu", show_default=True, help="torch device for the solve (cpu, cuda, cuda:1, ...).")
 @click.option("--compare", "compare", type=click.IntRange(min=8), default=None, metavar="N",
@@ -53,8 +53,8 @@ def command(scene_path, output, max_triangles, steps, batch_size, boundary_weigh
     if not output.lower().endswith(".dfield"):
         raise click.BadParameter(f"must end in .dfield, got {output!r}", param_hint="'-o' / '--output'")
     given = {k: v for k, v in (("steps", steps), ("batch_size", batch_size), ("boundary_weight", boundary_weight),
-                               ("lr", lr)) if v is not None}
-    settings = replace(SolveSettings(), max_triangles=max_triangles, dim=dim, feature_bits=feature_bits, seed=seed,
+                               ("lr", lr), ("feature_bits", feature_bits)) if v is not None}
+    settings = replace(SolveSettings(), max_triangles=max_triangles, dim=dim, seed=seed,
                        device=check_device(device), **given)
     curves = read_curves_checked(scene_path, quiet)
     clock = time.perf_counter()

@@ -28,6 +28,7 @@ import zstandard
 
 from ..errors import FormatError, MeshError
 from ..field.quantize import (
+    DEFAULT_FEATURE_BITS,
     MAX_FEATURE_BITS,
     MAX_WEIGHT_BITS,
     MIN_WEIGHT_BITS,
@@ -429,7 +430,7 @@ def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> by
 
 
 # ----------------------------------------------------------------------------------------------- public API
-def encode_dfield(contents: DfieldContents, *, feature_bits: int = 8, compression_level: int = 19,
+def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATURE_BITS, compression_level: int = 19,
                   feature_coding: str = "predicted", weight_bits: int | None = None,
                   mesh_validated: bool = False) -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).

@@ -45,6 +45,7 @@ import torch
 from torch import Tensor, nn
 
 from ..errors import InputError
+from ..field.quantize import DEFAULT_FEATURE_BITS
 from ..geometry import bezier
 from ..geometry.mesh import Mesh
 from ..geometry.plane import triangle_areas
@@ -224,7 +225,7 @@ class PoissonLoss:
 
 
 def solve(model: nn.Module, problem: SolveProblem, *, steps: int, batch_size: int, lr: float,
-          boundary_weight: float = BOUNDARY_WEIGHT, feature_bits: int = 8, seed: int = 0,
+          boundary_weight: float = BOUNDARY_WEIGHT, feature_bits: int = DEFAULT_FEATURE_BITS, seed: int = 0,
           callback: Callable[[int, Tensor, Tensor], None] | None = None) -> dict:
     """Train ``model`` in place on the loss ``E + boundary_weight · B`` (module docstring).
 
@@ -284,7 +285,7 @@ class SolveSettings:
     boundary_weight: float = BOUNDARY_WEIGHT
     lr: float = DFC_LR
     dim: int = 5
-    feature_bits: int = 8
+    feature_bits: int = DEFAULT_FEATURE_BITS
     mesh_bits: int = 20
     seed: int = 0
     device: str = "cpu"

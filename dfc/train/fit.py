@@ -13,6 +13,7 @@ from torch import Tensor
 
 from ..errors import InputError
 from ..field.model import FieldModel
+from ..field.quantize import DEFAULT_FEATURE_BITS
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
 from ..metrics import quality_scale
@@ -34,7 +35,7 @@ def fit(
     seed: int = 0,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     qat_steps: int = 0,
-    feature_bits: int = 8,
+    feature_bits: int = DEFAULT_FEATURE_BITS,
     data_range: float = 1.0,
     final_lr: float | None = None,
     weight_bits: int | None = None,
@@ -94,7 +95,7 @@ def fit_image(
     loss: str = "auto",
     device: str = "cpu",
     qat_steps: int | None = None,
-    feature_bits: int = 8,
+    feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
@@ -232,7 +233,7 @@ def fit_bands(
     loss: str = "auto",
     device: str = "cpu",
     qat_steps: int | None = None,
-    feature_bits: int = 8,
+    feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
@@ -297,7 +298,7 @@ def fit_samples(
     loss: str = "auto",
     device: str = "cpu",
     qat_steps: int | None = None,
-    feature_bits: int = 8,
+    feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
@@ -364,7 +365,7 @@ def fit_frames(
     loss: str = "auto",
     device: str = "cpu",
     qat_steps: int | None = None,
-    feature_bits: int = 8,
+    feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
+from ..field.quantize import DEFAULT_FEATURE_BITS
 from .distributed import parallel, rank_seed, world
 
 __all__ = ["BETAS", "Loss", "Sampler", "Schedule", "train"]
@@ -54,7 +55,7 @@ class Schedule:
     final_lr: float | None = None
     betas: tuple[float, float] = BETAS
     qat_steps: int = 0
-    feature_bits: int = 8
+    feature_bits: int = DEFAULT_FEATURE_BITS
     restart_stages: bool = False
     weight_bits: int | None = None
 

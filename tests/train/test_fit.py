@@ -5,7 +5,7 @@ import pytest
 import torch
 
 from dfc.field.model import FieldModel
-from dfc.field.quantize import dequantize_features, quantize_features
+from dfc.field.quantize import DEFAULT_FEATURE_BITS, dequantize_features, quantize_features
 from dfc.metrics import psnr
 from dfc.render import render
 from dfc.train.fit import fit_image
@@ -39,24 +39,24 @@ def test_zoom_100x_keeps_the_full_jump(fitted, name, centre):
     with torch.no_grad():
         pred = model(torch.from_numpy(xy)).numpy()
     assert np.ptp(truth[:, 0]) + np.ptp(truth[:, 1]) > 0.15  # the window does cross a jump
-    # measured ≤ 0.030 (8-bit features); a blurred (blended) edge is off by 0.1-0.3 on one side
+    # measured ≤ 0.030 (8-bit features, the default then); a blurred (blended) edge is off by 0.1-0.3 on one side
     assert np.abs(pred - truth).max() < 0.08
 
 
 def test_qat_model_matches_quantised_file_values(fitted, scene_mesh):
     _, model = fitted
-    assert model.quantization == {"feature_bits": 8}
+    assert model.quantization == {"feature_bits": DEFAULT_FEATURE_BITS}
     plain = FieldModel.from_config(scene_mesh, model.config())
     with torch.no_grad():
         model.quantization = None
-        q, scale, offset = quantize_features(model.field.bank.detach().numpy(), 8)
+        q, scale, offset = quantize_features(model.field.bank.detach().numpy(), DEFAULT_FEATURE_BITS)
         plain.field.bank.copy_(torch.from_numpy(dequantize_features(q, scale, offset)))
         for dst, src in zip(plain.decoder.linears(), model.decoder.linears()):
             dst.weight.copy_(src.weight.half().float())
             dst.bias.copy_(src.bias.half().float())
         raw_xy = torch.rand(500, 2, dtype=torch.float64, generator=torch.Generator().manual_seed(0)) * 64
         unquantised = model(raw_xy)
-        model.quantization = {"feature_bits": 8}
+        model.quantization = {"feature_bits": DEFAULT_FEATURE_BITS}
         torch.testing.assert_close(plain(raw_xy), model(raw_xy), rtol=1e-5, atol=1e-5)
         assert not torch.equal(unquantised, model(raw_xy))
 

@@ -14,7 +14,7 @@ and prints their ratio, the variance-reduction factor (paper: 19.21× at 11 spp)
 reference (data range ``dfc.metrics.data_range`` of the reference).
 
 With ``--encode`` it also measures what ``dfc encode SAMPLES.npz`` writes (``dfc.codec.encode_samples`` with the
-codec's own mesh sizing, ``--steps``, ``--batch-size`` and ``--seed``): the file decoded, rendered at the pixel
+codec's own mesh sizing and step count, ``dfc.codec.sample_steps``, and ``--batch-size`` and ``--seed``): the file decoded, rendered at the pixel
 centres, against the reference — the held-out figure — beside the PSNR the encoder itself reports
 (``EncodeReport.psnr``, measured on the samples).
 
@@ -167,7 +167,7 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
         row["fit_psnr"] = psnr(reference, image, data_range=peak)
         line = f"{row['raw_psnr']:.2f} / {row['fit_psnr']:.2f} dB"
         if measure_encode:
-            row["encode"] = _encode(subset, curves, steps, batch_size, seed, device, reference, clean, peak)
+            row["encode"] = _encode(subset, curves, batch_size, seed, device, reference, clean, peak)
             line += f" / {row['encode']['psnr']:.2f} dB ({row['encode']['encoder_psnr']:.2f})"
         stats["rows"].append(row)
         click.echo(f"{spp:>4} {row['raw_mse']:10.3e} {row['fit_mse']:10.3e} {row['factor']:6.2f}×   "
@@ -177,24 +177,25 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
         write_json(json_path, stats)
 
 
-def _encode(samples, curves, steps, batch_size, seed, device, reference, clean, peak) -> dict:
+def _encode(samples, curves, batch_size, seed, device, reference, clean, peak) -> dict:
     """``dfc.codec.encode_samples`` of ``samples`` decoded and rendered at the pixel centres, against ``reference``
     (H, W, C): PSNR on every pixel, MSE on every pixel and on the ``clean`` ones, the encoder's own PSNR, bytes,
     triangles and seconds."""
-    from ...codec import EncodeSettings, encode_samples, loads
+    from ...codec import EncodeSettings, encode_samples, loads, sample_steps
     from ...metrics import psnr
     from ...render import render
 
     clock = time.perf_counter()
-    blob, report = encode_samples(samples, curves, EncodeSettings(steps=steps, batch_size=batch_size, seed=seed,
-                                                                  device=device))
+    settings = EncodeSettings(steps=sample_steps(len(samples), batch_size), batch_size=batch_size, seed=seed,
+                              device=device)
+    blob, report = encode_samples(samples, curves, settings)
     seconds = time.perf_counter() - clock
     height, width = reference.shape[:2]
     image = render(loads(blob), width, height)
     err = (image - reference) ** 2
     return {"psnr": psnr(reference, image, data_range=peak), "mse": float(err[clean].mean()),
             "mse_all": float(err.mean()), "encoder_psnr": report.psnr, "bytes": len(blob),
-            "triangles": report.n_triangles, "seconds": seconds}
+            "triangles": report.n_triangles, "steps": settings.steps, "seconds": seconds}
 
 
 def _sample_mse(model, samples, chunk: int = 1 << 16) -> float:
