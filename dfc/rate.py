@@ -186,7 +186,9 @@ def _mesh_and_cap(curves: Curves, settings, channels: list[str], size_of) -> tup
         n = 2 * n if over is None else (fits + over) // 2
     if best is None:
         raise InputError(f"target of {settings.target_bytes} bytes is too small for these curves"
-                         + (f": the smallest mesh tried needs {size} bytes" if size is not None else ""))
+                         + (f": the smallest mesh tried needs {size} bytes" if size is not None else "")
+                         + (f" (fewer --feature-bits than {settings.feature_bits} make smaller files)"
+                            if settings.feature_bits > 8 else ""))
     return best
 
 

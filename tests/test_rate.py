@@ -61,8 +61,11 @@ def test_byte_targets_size_the_file_and_report_real_mesh_errors(scene, monkeypat
     mesh = rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000), ["R", "G", "B"])
     larger = rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=24_000), ["R", "G", "B"])
     assert mesh.n_triangles < larger.n_triangles
-    with pytest.raises(InputError, match="too small"):
+    with pytest.raises(InputError, match="too small.*fewer --feature-bits than 10"):
         rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=500), ["R", "G", "B"])
+    with pytest.raises(InputError, match="too small") as refused:
+        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=500, feature_bits=8), ["R", "G", "B"])
+    assert "--feature-bits" not in str(refused.value)  # no hint once the features are as coarse as 8 bits
 
     def broken(*args, **kwargs):
         raise MeshError("triangulate: pieces 3 and 4 cannot be separated")
