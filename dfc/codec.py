@@ -26,8 +26,8 @@ from .rate import DECODER_SHARE, decoder_hidden, image_mesh_size, sample_mesh_si
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
-__all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem", "encode_frames",
-           "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split", "load", "loads",
+__all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem",
+           "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split", "load", "loads",
            "sample_piece_length", "sample_steps"]
 
 QUERY_BLOCK = 1 << 18
@@ -36,9 +36,10 @@ SAMPLE_PIECES = 1.55
 """Sample sets: curved pieces are cut to at most the domain's longer side / (``SAMPLE_PIECES`` · n^¼) for n
 samples before meshing (``sample_piece_length``, ``dfc.geometry.curves.split_pieces``). A curved piece's sliver
 carries one curve feature, so long pieces leave a wide band along the curve with little freedom; short ones force
-triangles whose features see few samples each. On the pepper at 11 spp (``dfc benchmark wos --encode``) 1/32 of the
-side beat 1/64 at 128² (180k samples: 12.8× against 5.4× less error variance than the raw mean, in 30 % fewer bytes)
-and 1/64 beat 1/32 at 500² (2.75M samples: 39× against 33×); n^¼ passes through both."""
+triangles whose features see few samples each. On the pepper at 11 spp, with the samples' triangles on top of the
+curves' (``dfc.rate.sample_mesh_size``), 1/32 of the side beat 1/64 at 128² (180k samples: 10.1× against 5.4× less
+error variance than the raw mean, in 31 % fewer bytes) and 1/64 beat 1/32 at 500² (2.75M samples: 39× against 33×);
+n^¼ passes through both."""
 
 SAMPLE_PASSES = 12
 """``dfc encode`` of a sample set without ``--steps`` runs enough steps for this many passes over its samples, at
@@ -142,8 +143,8 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
 
 
 def refine_rounds(settings) -> int:
-    """Rounds of refinement of an image encode read whole or a FEM encode: ``settings.refine``, else (None) one under a byte target
-    (it fills the target: ``dfc.rate.fill_points``), at most ``TARGET_PSNR_ROUNDS`` under a PSNR target, and none
+    """Rounds of refinement of an image encode read whole or a FEM encode: ``settings.refine``, else (None) one under
+    a byte target (it fills the target: ``dfc.rate.fill_points``), at most ``TARGET_PSNR_ROUNDS`` under a PSNR target, and none
     without either."""
     if settings.refine is not None:
         return settings.refine

@@ -14,8 +14,8 @@ and prints their ratio, the variance-reduction factor (paper: 19.21× at 11 spp)
 reference (data range ``dfc.metrics.data_range`` of the reference).
 
 With ``--encode`` it also measures what ``dfc encode SAMPLES.npz`` writes (``dfc.codec.encode_samples`` with the
-codec's own mesh sizing and step count, ``dfc.codec.sample_steps``, and ``--batch-size`` and ``--seed``): the file decoded, rendered at the pixel
-centres, against the reference — the held-out figure — beside the PSNR the encoder itself reports
+codec's own mesh sizing and step count, ``dfc.codec.sample_steps``, and ``--batch-size`` and ``--seed``): the
+file decoded, rendered at the pixel centres, against the reference — the held-out figure — beside the PSNR the encoder itself reports
 (``EncodeReport.psnr``, measured on the samples).
 
 Curved pieces are cut as ``dfc encode SAMPLES.npz`` cuts the largest sample set (``dfc.codec.sample_piece_length``
