@@ -22,13 +22,13 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import load, loads, to_contents
 from .metrics import QualityScale, quality_scale
 from .metrics import data_range as signal_range
-from .rate import DECODER_SHARE, decoder_hidden, image_mesh_size, sample_mesh_size, sized_mesh
+from .rate import DECODER_SHARE, decoder_hidden, image_mesh_size, mesh_size_set, sample_mesh_size, sized_mesh
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
 __all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem",
-           "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split", "load", "loads",
-           "sample_piece_length", "sample_steps"]
+           "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split",
+           "load", "loads", "sample_piece_length", "sample_steps"]
 
 QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
@@ -144,8 +144,8 @@ def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
 
 def refine_rounds(settings) -> int:
     """Rounds of refinement of an image encode read whole or a FEM encode: ``settings.refine``, else (None) one under
-    a byte target (it fills the target: ``dfc.rate.fill_points``), at most ``TARGET_PSNR_ROUNDS`` under a PSNR target, and none
-    without either."""
+    a byte target (it fills the target: ``dfc.rate.fill_points``), at most ``TARGET_PSNR_ROUNDS`` under a PSNR
+    target, and none without either."""
     if settings.refine is not None:
         return settings.refine
     return 1 if settings.target_bytes else TARGET_PSNR_ROUNDS if settings.target_psnr is not None else 0
@@ -153,8 +153,7 @@ def refine_rounds(settings) -> int:
 
 def fem_settings(settings: EncodeSettings) -> EncodeSettings:
     """``settings`` of a FEM encode: aiming at ``FEM_TARGET_PSNR`` when they set no mesh size, target or ``refine``."""
-    if settings.refine is None and all(getattr(settings, k) is None for k in (
-            "max_triangles", "max_area", "edge_length", "target_bytes", "target_psnr")):
+    if settings.refine is None and settings.target_psnr is None and not mesh_size_set(settings):
         return replace(settings, target_psnr=FEM_TARGET_PSNR)
     return settings
 

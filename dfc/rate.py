@@ -21,7 +21,7 @@ from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
 __all__ = ["DECODER_SHARE", "FILL", "FILL_CARRY_POINTS", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
            "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size",
-           "mesh_for_bytes", "refinement_points", "sample_mesh_size", "sized_mesh"]
+           "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -224,12 +224,18 @@ def decoder_hidden(n_values: int, budget: float | None = None, *, inputs: int = 
     return width
 
 
+def mesh_size_set(settings) -> bool:
+    """Whether ``settings`` size the mesh themselves: ``max_triangles``, ``max_area``, ``edge_length`` or
+    ``target_bytes``."""
+    return any(v is not None for v in (settings.max_triangles, settings.max_area, settings.edge_length,
+                                       settings.target_bytes))
+
+
 def _counted_mesh(curves: Curves, settings, cap: int, on_top: bool = False):
     """(settings with ``max_triangles = cap`` clamped to 2 .. ``DEFAULT_TRIANGLES``, and the decoder-view mesh), raising
     the cap to what the curves force (``on_top``: adding the cap to it); (settings, None) when a mesh-size option
     is set."""
-    if any(v is not None for v in (settings.max_triangles, settings.max_area, settings.edge_length,
-                                   settings.target_bytes)):
+    if mesh_size_set(settings):
         return settings, None
     cap = min(DEFAULT_TRIANGLES, max(2, cap))
     if on_top:

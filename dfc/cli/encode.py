@@ -106,9 +106,9 @@ def _curves_arg(ctx, param, value):
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
 @click.option("--refine", type=click.IntRange(0, 16),
               help="Image input read whole or FEM input: rounds of error-driven refinement after the fit (split the "
-                   "triangles with the largest error, refit for half the steps). Without --target-bytes each round adds triangles, so "
-                   "the file grows; with it a round adds as many as the target still pays for  [default: 1 with "
-                   "--target-bytes, else 0].")
+                   "triangles with the largest error, refit for half the steps). Without --target-bytes each round "
+                   "adds triangles, so the file grows; with it a round adds as many as the target still pays for  "
+                   "[default: 1 with --target-bytes, else 0].")
 @click.option("--loss", type=click.Choice(["auto", "mse", "relmse", "logmse"]), default="auto", show_default=True,
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
@@ -180,9 +180,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                                   target_bytes=target_bytes, target_psnr=target_psnr, steps=steps or DEFAULT_STEPS,
                                   batch_size=batch_size, dim=dim, feature_bits=feature_bits or DEFAULT_FEATURE_BITS,
-                                  mesh_bits=mesh_bits, weight_bits=weight_bits or None, feature_coding=feature_coding, refine=refine,
-                                  loss=loss, seed=seed, device=check_device(device), epoch_pixels=epoch_pixels,
-                                  workers=workers)
+                                  mesh_bits=mesh_bits, weight_bits=weight_bits or None, feature_coding=feature_coding,
+                                  refine=refine, loss=loss, seed=seed, device=check_device(device),
+                                  epoch_pixels=epoch_pixels, workers=workers)
         if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
             raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
                                      param_hint="'--workers'")

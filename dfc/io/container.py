@@ -430,8 +430,8 @@ def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> by
 
 
 # ----------------------------------------------------------------------------------------------- public API
-def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATURE_BITS, compression_level: int = 19,
-                  feature_coding: str = "predicted", weight_bits: int | None = None,
+def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATURE_BITS,
+                  compression_level: int = 19, feature_coding: str = "predicted", weight_bits: int | None = None,
                   mesh_validated: bool = False) -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
 

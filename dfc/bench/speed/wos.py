@@ -15,8 +15,8 @@ reference (data range ``dfc.metrics.data_range`` of the reference).
 
 With ``--encode`` it also measures what ``dfc encode SAMPLES.npz`` writes (``dfc.codec.encode_samples`` with the
 codec's own mesh sizing and step count, ``dfc.codec.sample_steps``, and ``--batch-size`` and ``--seed``): the
-file decoded, rendered at the pixel centres, against the reference — the held-out figure — beside the PSNR the encoder itself reports
-(``EncodeReport.psnr``, measured on the samples).
+file decoded, rendered at the pixel centres, against the reference — the held-out figure — beside the PSNR the
+encoder itself reports (``EncodeReport.psnr``, measured on the samples).
 
 Curved pieces are cut as ``dfc encode SAMPLES.npz`` cuts the largest sample set (``dfc.codec.sample_piece_length``
 of ``max(spp)`` walks per pixel; ``--piece-length`` overrides, in pixels); the mesh size is ``--max-triangles``.
