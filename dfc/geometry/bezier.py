@@ -287,13 +287,18 @@ def total_turning(cp, samples: int = 16) -> np.ndarray:
 def monotone_over_chord(cp) -> np.ndarray:
     """Whether each piece is a graph over its chord: x(t) strictly increasing in the chord frame.
 
-    Exact test on the quadratic ``dot(B'(t), P3 - P0)`` (zero allowed only at the ends).
+    Exact test on the quadratic ``dot(B'(t), P3 - P0)`` (zero allowed only at the ends). Consecutive control
+    points closer than ``tol.distinct_rel`` × the control polygon's size coincide, as in ``end_tangents``: a piece
+    cut at a cusp's rounded root has such a pair, whose rounding error must not count as a step backwards.
     cp : (N, 4, 2) float
     returns (N,) bool; False for a zero chord
     """
     cp = _as_cp(cp)
     d = cp[:, 3] - cp[:, 0]
-    e = (np.diff(cp, axis=1) * d[:, None]).sum(axis=-1)  # (N, 3) Bernstein coefficients of x'(t) / 3
+    steps = np.diff(cp, axis=1)
+    e = (steps * d[:, None]).sum(axis=-1)  # (N, 3) Bernstein coefficients of x'(t) / 3
+    size = np.abs(cp - cp[:, :1]).max(axis=(1, 2))
+    e[np.hypot(steps[..., 0], steps[..., 1]) <= tol.distinct_rel * size[:, None]] = 0.0
     e0, e1, e2 = e[:, 0], e[:, 1], e[:, 2]
     curv = e0 - 2.0 * e1 + e2
     with np.errstate(divide="ignore", invalid="ignore"):

@@ -243,6 +243,14 @@ def test_clean_properties(curves):
     assert_clean_invariants(curves, out)
 
 
+def test_cusp_branches_meet_only_at_the_cusp():
+    """A cusp is cut at a rounded root, so its branches' end control points coincide only up to rounding; read as
+    a backward step, that once had the branch halved towards the cusp into lines whose new end points lay on the
+    other branch (found by hypothesis)."""
+    curves = _scene(238, 4, ["x_junction", "x_junction", "overlap", "overlap", "cusp"])
+    assert_clean_invariants(curves, clean(curves))
+
+
 @pytest.mark.shared
 @pytest.mark.parametrize("name", ["svg/engine_geometry.svg", "diffusion-curves/poivron_orzan.xml"])
 def test_clean_shared_data(shared_data, name):
