@@ -8,6 +8,7 @@ written bytes decoded again (``_finish``), so the file decodes to what it report
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -16,13 +17,13 @@ from typing import Callable
 import numpy as np
 
 from . import __version__
-from .errors import InputError
+from .errors import InputError, TargetBytesError
 from .field.quantize import DEFAULT_FEATURE_BITS
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import load, loads, to_contents
 from .metrics import QualityScale, quality_scale
 from .metrics import data_range as signal_range
-from .rate import DECODER_SHARE, decoder_hidden, image_mesh_size, mesh_size_set, sample_mesh_size, sized_mesh
+from .rate import DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set, sample_mesh_size, sized_mesh
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
@@ -76,7 +77,8 @@ class EncodeSettings:
     (stopping once the fit's 1× PSNR, anti-aliased, or nodal PSNR reaches it), else none). Fit
     (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
     ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks,
-    recorded). Storage (spec/dfield.md): ``feature_bits``, ``feature_coding`` ("predicted": ``FEAC``, "plain": the
+    recorded). Storage (spec/dfield.md): ``feature_bits`` (None: ``DEFAULT_FEATURE_BITS``, or the first of
+    ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte target too small for it), ``feature_coding`` ("predicted": ``FEAC``, "plain": the
     1.0 ``FEAT``), ``weight_bits`` (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
     """
 
@@ -93,7 +95,7 @@ class EncodeSettings:
     dim: int = 5
     hidden: int = 64
     layers: int = 2
-    feature_bits: int = DEFAULT_FEATURE_BITS
+    feature_bits: int | None = None
     feature_coding: str = "predicted"
     weight_bits: int | None = 8
     mesh_bits: int = 20
@@ -112,7 +114,7 @@ class EncodeReport:
     ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``psnr_reference``:
     against the exact values given as ``reference``, on the same scale (sample sets), else None. ``target_psnr``: the
     PSNR the encode aimed at (``EncodeSettings.target_psnr``, or ``FEM_TARGET_PSNR`` by default for a FEM solution),
-    else None."""
+    else None. ``feature_bits``: the bits the features were stored with."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -127,6 +129,7 @@ class EncodeReport:
     heldout: int = 0
     psnr_reference: float | None = None
     target_psnr: float | None = None
+    feature_bits: int = DEFAULT_FEATURE_BITS
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -188,6 +191,29 @@ def encoder_info(settings, source: str, extra: dict) -> dict:
 
 
 # ----------------------------------------------------------------------------------------------- encoders
+def _feature_bits(encode):
+    """``encode(signal, curves, settings, **kw)`` with the default ``settings.feature_bits`` (None) resolved:
+    ``DEFAULT_FEATURE_BITS``, then under a byte target the smallest mesh does not fit with them each of
+    ``dfc.rate.FEATURE_BITS_FALLBACK`` in turn (the target is refused before any fitting, so a retry costs only
+    the mesh sizing)."""
+
+    @functools.wraps(encode)
+    def resolved(signal, curves: Curves, settings: EncodeSettings | None = None, **kw):
+        settings = settings or EncodeSettings()
+        if settings.feature_bits is not None:
+            return encode(signal, curves, settings, **kw)
+        tried = (DEFAULT_FEATURE_BITS, *(FEATURE_BITS_FALLBACK if settings.target_bytes else ()))
+        for bits in tried[:-1]:
+            try:
+                return encode(signal, curves, replace(settings, feature_bits=bits), **kw)
+            except TargetBytesError:
+                pass
+        return encode(signal, curves, replace(settings, feature_bits=tried[-1]), **kw)
+
+    return resolved
+
+
+@_feature_bits
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
                  fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None):
     """Encode a raster with its discontinuity curves.
@@ -249,6 +275,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                    pixel_size=(1.0, 1.0))
 
 
+@_feature_bits
 def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
                  callback: Callback | None = None):
     """Encode a raster read in bands (``dfc.io.bands``: an EXR file of any size, never held whole) with its
@@ -328,6 +355,7 @@ def _on_rank0(build):
     return result
 
 
+@_feature_bits
 def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = None, *,
                    reference: np.ndarray | None = None, callback: Callback | None = None):
     """Encode a scattered sample set (``dfc.io.samples.SampleSet``) with its discontinuity curves.
@@ -400,6 +428,7 @@ def heldout_split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return np.flatnonzero(~held), np.flatnonzero(held)
 
 
+@_feature_bits
 def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None, *, sampling: str = "linear",
                callback: Callback | None = None):
     """Encode a FEM solution (``dfc.io.fem.FemSolution``) with its barrier curves.
@@ -443,6 +472,7 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     return _finish(model, settings, info, seconds, len(nodal), at_nodes, scale)
 
 
+@_feature_bits
 def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = None, *, fit_curves: bool = False,
                   callback: Callback | None = None):
     """Encode a frame sequence (``dfc.io.frames.FrameSequence``, T frames of W × H covering [0, W] × [0, H]) with its
@@ -563,6 +593,6 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
         chunk_bytes=sizes, total_bytes=len(blob), bits_per_pixel=8.0 * len(blob) / n_pixels,
         psnr=scale.psnr(reference, test), data_range=scale.data_range,
         n_vertices=mesh.n_vertices, n_triangles=mesh.n_triangles, n_features=decoded.field.n_features,
-        seconds=seconds, tonemapped=scale.tonemap, target_psnr=settings.target_psnr,
+        seconds=seconds, tonemapped=scale.tonemap, target_psnr=settings.target_psnr, feature_bits=settings.feature_bits,
     )
     return blob, report

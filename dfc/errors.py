@@ -29,6 +29,10 @@ class InputError(DfcError, ValueError):
     """An image or sample input is unreadable or unusable (NaN pixels, mismatched domain, ...)."""
 
 
+class TargetBytesError(InputError):
+    """A byte target is below the smallest file the curves allow with the encode's settings."""
+
+
 class FormatError(DfcError, ValueError):
     """A ``.dfield`` file is truncated, corrupt, hostile or of an unsupported version."""
 

@@ -58,21 +58,21 @@ def test_sample_sets_cut_curved_pieces_shorter_the_more_samples_they_have():
 def test_byte_targets_size_the_file_and_report_real_mesh_errors(scene, monkeypatch):
     from dfc import rate
 
-    mesh = rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000), ["R", "G", "B"])
-    larger = rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=24_000), ["R", "G", "B"])
+    mesh = rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000, feature_bits=10), ["R", "G", "B"])
+    larger = rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=24_000, feature_bits=10), ["R", "G", "B"])
     assert mesh.n_triangles < larger.n_triangles
     with pytest.raises(InputError, match="too small.*fewer --feature-bits than 10"):
-        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=500), ["R", "G", "B"])
+        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=500, feature_bits=10), ["R", "G", "B"])
     with pytest.raises(InputError, match="too small") as refused:
-        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=500, feature_bits=8), ["R", "G", "B"])
-    assert "--feature-bits" not in str(refused.value)  # no hint once the features are as coarse as 8 bits
+        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=500, feature_bits=6), ["R", "G", "B"])
+    assert "--feature-bits" not in str(refused.value)  # no hint at the coarsest bits the encoders fall back to
 
     def broken(*args, **kwargs):
         raise MeshError("triangulate: pieces 3 and 4 cannot be separated")
 
     monkeypatch.setattr(rate, "triangulate", broken)
     with pytest.raises(MeshError, match="cannot be separated"):  # not reported as a byte target too small
-        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000), ["R", "G", "B"])
+        rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000, feature_bits=10), ["R", "G", "B"])
 
 
 def test_the_decoder_narrows_to_its_share_of_a_byte_target():
@@ -123,3 +123,36 @@ def test_fill_points_spend_what_the_target_leaves(scene):
     carried = FieldModel.from_config(refined, model.config())
     carry_over(model, carried, xy)
     assert size_of(carried) <= FILL * 2.0 * now
+
+
+def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewer(scene, tmp_path):
+    import re
+
+    from dfc.codec import encode_image
+    from dfc.errors import TargetBytesError
+    from dfc.field.quantize import DEFAULT_FEATURE_BITS
+    from dfc.io.container import read_dfield_info
+
+    image = scene.render(64, 64)
+
+    def smallest(bits: int) -> int:
+        with pytest.raises(TargetBytesError) as refused:
+            encode_image(image, scene.curves, EncodeSettings(target_bytes=300, feature_bits=bits, steps=1),
+                         fit_curves=True)
+        return int(re.search(r"smallest file tried takes (\d+) bytes", str(refused.value)).group(1))
+
+    at10, at8 = smallest(DEFAULT_FEATURE_BITS), smallest(8)
+    assert at8 < at10
+    target = (at8 + at10) // 2
+    settings = EncodeSettings(target_bytes=target, steps=5, batch_size=1024, refine=0)
+    blob, report = encode_image(image, scene.curves, settings, fit_curves=True)
+    assert report.feature_bits == 8 and len(blob) <= target
+    path = tmp_path / "small.dfield"
+    path.write_bytes(blob)
+    assert read_dfield_info(path)["features"]["bits"] == 8  # the file stores what the report says
+    with pytest.raises(TargetBytesError, match="fewer --feature-bits than 10"):  # bits the caller chose are kept
+        encode_image(image, scene.curves, EncodeSettings(target_bytes=target, feature_bits=10, steps=5),
+                     fit_curves=True)
+    _, default = encode_image(image, scene.curves, EncodeSettings(max_triangles=200, steps=5, batch_size=1024),
+                              fit_curves=True)
+    assert default.feature_bits == DEFAULT_FEATURE_BITS  # no byte target: the default bits

@@ -198,7 +198,7 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
     model = loads(blob, device=settings.device)
     details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,
-                          "dim": enc.dim, "feature_bits": enc.feature_bits, "mesh_bits": enc.mesh_bits,
+                          "dim": enc.dim, "feature_bits": report.feature_bits, "mesh_bits": enc.mesh_bits,
                           "steps": enc.steps},
                "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds}
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}

@@ -97,7 +97,8 @@ def _curves_arg(ctx, param, value):
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
 @click.option("--feature-bits", type=click.IntRange(1, 16), default=None,
-              help="Bits per stored feature value  [default: 10].")
+              help="Bits per stored feature value  [default: 10; 8, else 6, when --target-bytes is too small for "
+                   "the smallest mesh at 10].")
 @click.option("--mesh-bits", type=click.IntRange(1, 23), default=20, show_default=True,
               help="Draco quantisation bits of the vertex positions.")
 @click.option("--weight-bits", type=click.IntRange(0, 16), default=8, show_default=True, callback=_weight_bits,
@@ -179,7 +180,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
                                   target_bytes=target_bytes, target_psnr=target_psnr, steps=steps or DEFAULT_STEPS,
-                                  batch_size=batch_size, dim=dim, feature_bits=feature_bits or DEFAULT_FEATURE_BITS,
+                                  batch_size=batch_size, dim=dim, feature_bits=feature_bits,
                                   mesh_bits=mesh_bits, weight_bits=weight_bits or None, feature_coding=feature_coding,
                                   refine=refine, loss=loss, seed=seed, device=check_device(device),
                                   epoch_pixels=epoch_pixels, workers=workers)
@@ -232,6 +233,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         what = "--target-psnr" if target_psnr is not None else "the default FEM target of"
         note(f"{what} {report.target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
              "triangles after the refinement rounds (more --steps, or --refine N for more rounds, may reach it)", quiet)
+    if feature_bits is None and report.feature_bits != DEFAULT_FEATURE_BITS:
+        note(f"--target-bytes {target_bytes} is too small for the smallest mesh with {DEFAULT_FEATURE_BITS}-bit "
+             f"features: they are stored with {report.feature_bits} bits", quiet)
     if report.total_bytes > input_bytes:
         note(f"the file ({report.total_bytes} bytes) is larger than the input ({input_bytes} bytes): on an input this "
              f"small the header and decoder weigh more than the data", quiet)
