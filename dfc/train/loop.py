@@ -48,6 +48,8 @@ class Schedule:
         matrices), which stays set on return so the model evaluates as stored
     restart_stages : coarse-to-fine stages each restart the learning-rate decay and reseed the sampling
         generator with ``seed + stage``; else the decay and the generator run straight through all stages
+    decoder_lr : for a model with a ``field`` (``FieldModel``), the factor on the learning rate of every parameter
+        outside it (the decoder); the field's features keep ``lr``
     """
 
     steps: int
@@ -58,6 +60,7 @@ class Schedule:
     feature_bits: int = DEFAULT_FEATURE_BITS
     restart_stages: bool = False
     weight_bits: int | None = None
+    decoder_lr: float = 1.0
 
     def check(self) -> None:
         """Raise ValueError on settings no run can have."""
@@ -65,8 +68,9 @@ class Schedule:
             raise ValueError(f"steps must be a positive integer, got {self.steps!r}")
         if not isinstance(self.qat_steps, int) or not 0 <= self.qat_steps <= self.steps:
             raise ValueError(f"qat_steps must be an integer in [0, steps={self.steps}], got {self.qat_steps!r}")
-        if not self.lr > 0 or (self.final_lr is not None and not self.final_lr > 0):
-            raise ValueError(f"learning rates must be positive, got lr={self.lr}, final_lr={self.final_lr}")
+        if not self.lr > 0 or (self.final_lr is not None and not self.final_lr > 0) or not self.decoder_lr > 0:
+            raise ValueError(f"learning rates must be positive, got lr={self.lr}, final_lr={self.final_lr}, "
+                             f"decoder_lr={self.decoder_lr}")
 
     def quantization(self) -> dict:
         """The ``model.quantization`` of the quantisation-aware steps."""
@@ -107,14 +111,14 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
             generator = torch.Generator(device).manual_seed(rank_seed(seed + k, rank))
         start, length = (step, n) if schedule.restart_stages else (0, total)
         decay = schedule.decay(length)
-        optimizer = torch.optim.Adam(model.parameters(), lr=schedule.lr, betas=schedule.betas)
+        optimizer = torch.optim.Adam(_groups(model, schedule.decoder_lr), lr=schedule.lr, betas=schedule.betas)
         net = parallel(model)
         for _ in range(n):
             if step == qat_from:
                 model.quantization = schedule.quantization()
                 net = parallel(model, sync=False)
             for group in optimizer.param_groups:
-                group["lr"] = schedule.lr * decay ** (step - start)
+                group["lr"] = group["factor"] * schedule.lr * decay ** (step - start)
             value, metrics = loss(net, sampler(step, generator))
             optimizer.zero_grad(set_to_none=True)
             value.backward()
@@ -127,3 +131,13 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
     model.eval()
     return {name: torch.stack(values).cpu().tolist() for name, values in history.items()}
 
+
+def _groups(model: nn.Module, decoder_lr: float) -> list[dict]:
+    """Adam's parameter groups, each with the ``factor`` on the schedule's learning rate: a model's ``field``
+    parameters 1, the rest ``decoder_lr``; a model without a ``field`` one group at 1."""
+    field = getattr(model, "field", None)
+    if field is None:
+        return [{"params": list(model.parameters()), "factor": 1.0}]
+    own = {id(p) for p in field.parameters()}
+    return [{"params": [p for p in model.parameters() if id(p) in own], "factor": 1.0},
+            {"params": [p for p in model.parameters() if id(p) not in own], "factor": decoder_lr}]

@@ -37,6 +37,29 @@ def test_fit_reduces_loss_and_reports(scene_mesh):
     assert history["psnr"][-1] == pytest.approx(10 * np.log10(1 / history["loss"][-1]), rel=0.05)
 
 
+@pytest.mark.parametrize("decoder_lr", [1.0, 0.2])
+def test_the_decoder_learns_at_its_factor_of_the_features_rate(scene_mesh, decoder_lr):
+    model = FieldModel(FeatureField(scene_mesh, seed=1), ["R", "G", "B"], hidden=16, seed=1)
+    before = {name: p.detach().clone() for name, p in model.named_parameters()}
+    fit(model, image_sampler(scene_image(spp=1), scene_mesh.domain, 4096), steps=1, lr=1e-2, decoder_lr=decoder_lr)
+    moved = {name: (p.detach() - before[name]).abs().max().item() for name, p in model.named_parameters()}
+    features = [v for name, v in moved.items() if name.startswith("field.")]
+    decoder = [v for name, v in moved.items() if not name.startswith("field.")]
+    assert features and decoder
+    # Adam's first step moves every parameter with a gradient by its group's learning rate
+    assert max(features) == pytest.approx(1e-2, rel=1e-3)
+    assert max(decoder) == pytest.approx(decoder_lr * 1e-2, rel=1e-3)
+
+
+
+def test_image_fits_slow_the_decoder_only_when_they_are_long():
+    from dfc.train.fit import DECODER_LR, DECODER_LR_MIN_STEPS, decoder_lr
+
+    assert DECODER_LR < 1.0
+    assert decoder_lr(DECODER_LR_MIN_STEPS) == decoder_lr(10 * DECODER_LR_MIN_STEPS) == DECODER_LR
+    assert decoder_lr(DECODER_LR_MIN_STEPS - 1) == 1.0
+
+
 def test_fit_rejects_bad_arguments(scene_mesh):
     model = FieldModel(FeatureField(scene_mesh), ["Y"])
     sampler = image_sampler(np.zeros((4, 4, 1), np.float32), scene_mesh.domain, 4)
@@ -46,6 +69,8 @@ def test_fit_rejects_bad_arguments(scene_mesh):
         fit(model, sampler, steps=5, qat_steps=6)
     with pytest.raises(ValueError, match="loss"):
         fit(model, sampler, steps=5, loss="l1")
+    with pytest.raises(ValueError, match="decoder_lr"):
+        fit(model, sampler, steps=5, decoder_lr=0.0)
 
 
 class _Staged(torch.nn.Module):
