@@ -23,7 +23,8 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import load, loads, to_contents
 from .metrics import QualityScale, quality_scale
 from .metrics import data_range as signal_range
-from .rate import DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set, sample_mesh_size, sized_mesh
+from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set,
+                   sample_mesh_size, sized_mesh)
 from .render import values_at
 from .train.fit import DEFAULT_STEPS
 
@@ -78,8 +79,9 @@ class EncodeSettings:
     (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
     ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks,
     recorded). Storage (spec/dfield.md): ``feature_bits`` (None: ``DEFAULT_FEATURE_BITS``, or the first of
-    ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte target too small for it), ``feature_coding`` ("predicted": ``FEAC``, "plain": the
-    1.0 ``FEAT``), ``weight_bits`` (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
+    ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte target too small for it), ``feature_coding``
+    ("predicted": ``FEAC``, "plain": the 1.0 ``FEAT``), ``weight_bits`` (integer weight matrices in ``MLPQ``; None:
+    float16 ``MLPW``), ``mesh_bits``.
     """
 
     max_triangles: int | None = None
@@ -193,9 +195,9 @@ def encoder_info(settings, source: str, extra: dict) -> dict:
 # ----------------------------------------------------------------------------------------------- encoders
 def _feature_bits(encode):
     """``encode(signal, curves, settings, **kw)`` with the default ``settings.feature_bits`` (None) resolved:
-    ``DEFAULT_FEATURE_BITS``, then under a byte target the smallest mesh does not fit with them each of
-    ``dfc.rate.FEATURE_BITS_FALLBACK`` in turn (the target is refused before any fitting, so a retry costs only
-    the mesh sizing)."""
+    ``DEFAULT_FEATURE_BITS``; when a byte target is too small for the smallest mesh with them, each of
+    ``dfc.rate.FEATURE_BITS_FALLBACK`` in turn (a target is refused before any fitting, so a retry costs only the
+    mesh sizing)."""
 
     @functools.wraps(encode)
     def resolved(signal, curves: Curves, settings: EncodeSettings | None = None, **kw):
@@ -593,6 +595,7 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
         chunk_bytes=sizes, total_bytes=len(blob), bits_per_pixel=8.0 * len(blob) / n_pixels,
         psnr=scale.psnr(reference, test), data_range=scale.data_range,
         n_vertices=mesh.n_vertices, n_triangles=mesh.n_triangles, n_features=decoded.field.n_features,
-        seconds=seconds, tonemapped=scale.tonemap, target_psnr=settings.target_psnr, feature_bits=settings.feature_bits,
+        seconds=seconds, tonemapped=scale.tonemap, target_psnr=settings.target_psnr,
+        feature_bits=settings.feature_bits,
     )
     return blob, report

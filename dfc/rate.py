@@ -19,9 +19,9 @@ from .geometry.curves import Curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
-__all__ = ["DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL", "FILL_CARRY_POINTS", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
-           "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size",
-           "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "sized_mesh"]
+__all__ = ["DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL", "FILL_CARRY_POINTS", "NOISY_SAMPLES_PER_TRIANGLE",
+           "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points",
+           "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
