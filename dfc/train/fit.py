@@ -28,10 +28,9 @@ DECODER_LR = 0.2
 """Image fits (``fit_image``, ``fit_bands``) train the decoder at this factor on the features' learning rate
 (``dfc.train.loop.Schedule``). On ``samples/sample.exr`` under byte targets of 4, 16 and 32 KB it lifts the 1× PSNR
 (4 × 4 points per pixel, against the input) from 58.37 / 63.89 / 64.30 to 59.10 / 66.54 / 66.13 dB at the same 1000
-steps (3000 steps at the factor 1 give 66.95 at 32 KB); scaling the features' rate down instead does not (64.14),
-nor does a factor falling from 1 to 0.2 over the run (63.74). Sample sets keep 1: at 1000 walk-on-spheres steps the
-factor changes nothing (+0.1 dB), and a short fit (80 steps) loses 4 dB. Short image fits keep 1 too
-(``DECODER_LR_MIN_STEPS``)."""
+steps (3000 steps at the factor 1 give 66.95 at 32 KB); scaling the features' rate down instead does not (64.14).
+Sample sets keep 1: at 1000 walk-on-spheres steps the factor changes nothing (+0.1 dB), and a short fit (80 steps)
+loses 4 dB. Short image fits keep 1 too (``DECODER_LR_MIN_STEPS``)."""
 
 DECODER_LR_MIN_STEPS = 500
 """Image fits of fewer steps keep the decoder at the features' rate (``decoder_lr``): a slow decoder needs the steps
