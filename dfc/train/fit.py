@@ -21,8 +21,8 @@ from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss, auto_loss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "decoder_lr", "fit", "fit_bands", "fit_frames",
-           "fit_image", "fit_samples"]
+__all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "fit", "fit_bands", "fit_frames", "fit_image",
+           "fit_samples", "image_decoder_lr"]
 
 DECODER_LR = 0.2
 """Image fits (``fit_image``, ``fit_bands``) train the decoder at this factor on the features' learning rate
@@ -33,13 +33,13 @@ Sample sets keep 1: at 1000 walk-on-spheres steps the factor changes nothing (+0
 loses 4 dB. Short image fits keep 1 too (``DECODER_LR_MIN_STEPS``)."""
 
 DECODER_LR_MIN_STEPS = 500
-"""Image fits of fewer steps keep the decoder at the features' rate (``decoder_lr``): a slow decoder needs the steps
-— at 100 steps the README sample fitted out of core reached 27 dB instead of 30, and at 300 steps HDR test images
-lost saturated colours; a factor falling from 1 to 0.2 over the run, or 200 steps at 1 first, kept little of the gain
-at 1000 steps (63.74 and 64.68 dB at 32 KB)."""
+"""Image fits of fewer steps keep the decoder at the features' rate (``image_decoder_lr``): a slow decoder needs the
+steps — at 100 steps the README sample fitted out of core reached 27 dB instead of 30, and at 300 steps HDR test
+images lost saturated colours; a factor falling from 1 to 0.2 over the run, or 200 steps at 1 first, kept little of
+the gain at 1000 steps (63.74 and 64.68 dB at 32 KB)."""
 
 
-def decoder_lr(steps: int) -> float:
+def image_decoder_lr(steps: int) -> float:
     """The decoder's learning-rate factor of an image fit of ``steps`` steps: ``DECODER_LR`` from
     ``DECODER_LR_MIN_STEPS`` on, else 1."""
     return DECODER_LR if steps >= DECODER_LR_MIN_STEPS else 1.0
@@ -148,7 +148,7 @@ def fit_image(
     callback : ``callback(step, loss, batch_psnr)`` after each step
     channels : output channel names (default: the Image's, else R, G, B[, A] / Y / c0, c1, …)
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (None: constant); the decoder's is
-        ``decoder_lr(steps)`` times it
+        ``image_decoder_lr(steps)`` times it
     mixed_pixels : {"drop", "keep"}; "drop" leaves out the pixels a discontinuity crosses
         (``edge_pixels``): their box-filtered blend of both sides would otherwise pull the field's
         values near every edge towards the blend, visible as a soft band at zoom. Ignored when it
@@ -194,7 +194,7 @@ def fit_image(
         jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=seed, exclude=exclude,
     )
     fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
-        weight_bits=weight_bits, decoder_lr=decoder_lr(run["steps"]), **run)
+        weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
 
 
@@ -300,7 +300,7 @@ def fit_bands(
     sampler = band_sampler(source, mesh.domain, local, epoch_pixels=epoch_pixels, mixed=mixed, held_out=held_out,
                            rank=rank, world=size, device=device, query=query)
     fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
-        weight_bits=weight_bits, decoder_lr=decoder_lr(run["steps"]), **run)
+        weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
 
 

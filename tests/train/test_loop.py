@@ -53,11 +53,11 @@ def test_the_decoder_learns_at_its_factor_of_the_features_rate(scene_mesh, decod
 
 
 def test_image_fits_slow_the_decoder_only_when_they_are_long():
-    from dfc.train.fit import DECODER_LR, DECODER_LR_MIN_STEPS, decoder_lr
+    from dfc.train.fit import DECODER_LR, DECODER_LR_MIN_STEPS, image_decoder_lr
 
     assert DECODER_LR < 1.0
-    assert decoder_lr(DECODER_LR_MIN_STEPS) == decoder_lr(10 * DECODER_LR_MIN_STEPS) == DECODER_LR
-    assert decoder_lr(DECODER_LR_MIN_STEPS - 1) == 1.0
+    assert image_decoder_lr(DECODER_LR_MIN_STEPS) == image_decoder_lr(10 * DECODER_LR_MIN_STEPS) == DECODER_LR
+    assert image_decoder_lr(DECODER_LR_MIN_STEPS - 1) == 1.0
 
 
 def test_fit_rejects_bad_arguments(scene_mesh):
