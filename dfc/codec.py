@@ -26,11 +26,11 @@ from .metrics import data_range as signal_range
 from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set,
                    sample_mesh_size, sized_mesh)
 from .render import values_at
-from .train.fit import DEFAULT_STEPS
+from .train.fit import DEFAULT_STEPS, IMAGE_STEPS
 
-__all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "encode_bands", "encode_fem",
-           "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings", "heldout_split",
-           "load", "loads", "sample_piece_length", "sample_steps"]
+__all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "default_steps", "encode_bands",
+           "encode_fem", "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings",
+           "heldout_split", "load", "loads", "sample_piece_length", "sample_steps"]
 
 QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
@@ -76,12 +76,12 @@ class EncodeSettings:
     still pays for, and refits for ``refine_steps``, default half of ``steps``, from the previous fit; images read
     whole and FEM solutions; None: one round under a byte target, up to ``TARGET_PSNR_ROUNDS`` under ``target_psnr``
     (stopping once the fit's 1× PSNR, anti-aliased, or nodal PSNR reaches it), else none). Fit
-    (``dfc.train.fit``): ``steps``, ``batch_size``, ``dim``, ``hidden``, ``layers``, ``qat_steps``, ``loss``, ``seed``,
-    ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels`` (None: sized to memory) and ``workers`` (ranks,
-    recorded). Storage (spec/dfield.md): ``feature_bits`` (None: ``DEFAULT_FEATURE_BITS``, or the first of
-    ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte target too small for it), ``feature_coding``
-    ("predicted": ``FEAC``, "plain": the 1.0 ``FEAT``), ``weight_bits`` (integer weight matrices in ``MLPQ``; None:
-    float16 ``MLPW``), ``mesh_bits``.
+    (``dfc.train.fit``): ``steps`` (None: ``default_steps`` of the input), ``batch_size``, ``dim``, ``hidden``,
+    ``layers``, ``qat_steps``, ``loss``, ``seed``, ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels``
+    (None: sized to memory) and ``workers`` (ranks, recorded). Storage (spec/dfield.md): ``feature_bits`` (None:
+    ``DEFAULT_FEATURE_BITS``, or the first of ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte
+    target too small for it), ``feature_coding`` ("predicted": ``FEAC``, "plain": the 1.0 ``FEAT``), ``weight_bits``
+    (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
     """
 
     max_triangles: int | None = None
@@ -92,7 +92,7 @@ class EncodeSettings:
     refine: int | None = None
     refine_steps: int | None = None
     refine_fraction: float = 0.25
-    steps: int = DEFAULT_STEPS
+    steps: int | None = None
     batch_size: int = 1 << 14
     dim: int = 5
     hidden: int = 64
@@ -246,7 +246,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     from .render import EDGE_SPP, default_edge_spp, render, window_points
     from .train.fit import fit_image
 
-    settings = settings or EncodeSettings()
+    settings = _with_steps(settings or EncodeSettings(), "image")
     pixels = check_pixels(image)
     h, w, c = pixels.shape
     channels = getattr(image, "channels", None) or default_channels(c)
@@ -298,7 +298,7 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     from .train.bands import HeldOut, scan
     from .train.fit import MAX_DROPPED_FRACTION, fit_bands
 
-    settings = settings or EncodeSettings()
+    settings = _with_steps(settings or EncodeSettings(), "image")
     rank, world = distributed.world()
     h, w = source.height, source.width
     channels = list(source.channels)
@@ -366,7 +366,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     without a mesh-size setting the mesh follows the sample count
     (``dfc.rate.sample_mesh_size``). A random ``HOLDOUT_FRACTION`` of the samples (``heldout_split``) is left out of
     the fit: ``report.psnr`` is of the decoded file at their positions against their values (``report.heldout``
-    of them). ``settings.steps`` is used as given (``dfc encode`` without ``--steps`` gives ``sample_steps``).
+    of them). Without ``settings.steps``, ``sample_steps`` of them.
     ``reference`` : optional (H, W, C) exact values at the pixel centres of a W × H grid over the
     domain (``dfc wos --reference``); ``report.psnr_reference`` is of the file rendered there against them.
     ``bits_per_pixel`` counts bits per sample.
@@ -380,6 +380,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     if domain is not None and not np.allclose(domain, curves.domain, rtol=1e-9, atol=0):
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
     values = np.asarray(samples.values, dtype=np.float32)
+    settings = _with_steps(settings, "samples", len(values))
     channels = samples.channels or default_channels(values.shape[1])
     if reference is not None and (np.ndim(reference) != 3 or np.shape(reference)[2] != values.shape[1]):
         raise InputError(f"the reference must be an (H, W, {values.shape[1]}) raster of the samples' channels, got "
@@ -421,6 +422,22 @@ def sample_steps(n_samples: int, batch_size: int) -> int:
     return max(DEFAULT_STEPS, math.ceil(SAMPLE_PASSES * n_samples / batch_size))
 
 
+def default_steps(kind: str, n_samples: int = 0, batch_size: int = 1 << 14) -> int:
+    """Fit steps of an encode whose settings give none: ``IMAGE_STEPS`` for an image (read whole or in bands),
+    ``sample_steps`` for a sample set of ``n_samples``, ``DEFAULT_STEPS`` for FEM data and frames. ``kind`` is one
+    of "image", "samples", "fem", "frames"."""
+    if kind == "image":
+        return IMAGE_STEPS
+    return sample_steps(n_samples, batch_size) if kind == "samples" else DEFAULT_STEPS
+
+
+def _with_steps(settings: EncodeSettings, kind: str, n_samples: int = 0) -> EncodeSettings:
+    """``settings`` with ``steps`` set to ``default_steps`` when None."""
+    if settings.steps is not None:
+        return settings
+    return replace(settings, steps=default_steps(kind, n_samples, settings.batch_size))
+
+
 def heldout_split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """Indices (fitted, held out) of ``n`` samples: a random ``HOLDOUT_FRACTION`` (at most ``HOLDOUT_MAX``) held out,
     drawn with ``seed``; none below ``HOLDOUT_MIN_SAMPLES`` samples. Both sorted (int64)."""
@@ -450,7 +467,7 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     from .physics.fem import fem_curves, node_points, sample_fem
     from .train.fit import fit_samples
 
-    settings, fit_kw = _physical(fem_settings(settings or EncodeSettings()))
+    settings, fit_kw = _physical(_with_steps(fem_settings(settings or EncodeSettings()), "fem"))
     settings = replace(settings, refine=refine_rounds(settings))
     curves = fem_curves(solution, curves)
     xy, values = sample_fem(solution, curves, mode=sampling, seed=settings.seed)
@@ -493,7 +510,7 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     t, h, w, c = frames.shape
     channels = sequence.channels or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
-    settings, fit_kw = _physical(settings or EncodeSettings())
+    settings, fit_kw = _physical(_with_steps(settings or EncodeSettings(), "frames"))
     scale = QualityScale(signal_range(frames))  # values as they are: frames are fitted as physical quantities
     model, seconds = _mesh_and_fit(fit_frames, sequence, curves, settings, channels, callback,
                                    data_range=scale.data_range, tonemap=False, **fit_kw)

@@ -45,6 +45,23 @@ def test_sample_sets_fit_for_a_number_of_passes_over_their_samples():
     assert sample_steps(10**7, 16384) * 16384 >= SAMPLE_PASSES * 10**7 > (sample_steps(10**7, 16384) - 1) * 16384
 
 
+def test_each_input_kind_has_its_default_step_count(scene):
+    from dfc.codec import default_steps, encode_image, loads, sample_steps
+    from dfc.train.fit import DEFAULT_STEPS, IMAGE_STEPS
+
+    assert IMAGE_STEPS > DEFAULT_STEPS
+    assert default_steps("image") == IMAGE_STEPS
+    assert default_steps("samples", 10**7, 4096) == sample_steps(10**7, 4096) > DEFAULT_STEPS
+    assert default_steps("fem") == default_steps("frames") == DEFAULT_STEPS
+    # the library resolves them as the CLI does: an image encode without steps runs IMAGE_STEPS and records them
+    image = scene.render(16, 16, spp=1)
+    steps = []
+    blob, _ = encode_image(image, scene.curves, EncodeSettings(batch_size=64),
+                           fit_curves=True, callback=lambda step, *_: steps.append(step))
+    assert len(steps) == IMAGE_STEPS
+    assert loads(blob).header["encoder"]["steps"] == IMAGE_STEPS
+
+
 def test_sample_sets_cut_curved_pieces_shorter_the_more_samples_they_have():
     from dfc.codec import sample_piece_length
 

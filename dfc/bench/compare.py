@@ -54,6 +54,7 @@ from torch import nn
 from ..errors import InputError
 from ..metrics import QualityScale, quality_scale
 from ..render import window_shape, zoom_window
+from ..train.fit import IMAGE_STEPS
 from ..train.losses import auto_loss
 from .codecs import CODECS, SDR_ONLY
 from .measure import image_render, image_scores, mixed_pixels, pixel_render
@@ -84,7 +85,8 @@ THROUGHPUT_REPEATS = 3
 class BenchSettings:
     """Knobs of a benchmark run (stored in ``results.json``).
 
-    steps, batch_size : optimiser steps (at least) and samples per step, the same for every trained method
+    steps, batch_size : optimiser steps (at least; default dfc's own, ``IMAGE_STEPS``) and samples per step, the same
+        for every trained method
     size : longer side of the raster fitted for an analytic scene (default: the domain's longer side in its units);
         ignored for a user image
     render, spp : window resolution (longer side) and points averaged per pixel
@@ -99,7 +101,7 @@ class BenchSettings:
     keep_going : a method that cannot meet the budget is recorded under ``failed`` instead of ending the run
     """
 
-    steps: int = 1000
+    steps: int = IMAGE_STEPS
     batch_size: int = 1 << 14
     size: int | None = None
     render: int = 256

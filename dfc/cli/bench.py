@@ -78,8 +78,9 @@ def _budgets(ctx, param, value):
               "budget's outputs in DIR/budget_<bytes>/.")
 @click.option("--budgets", callback=_budgets, help="Comma-separated byte budgets of --rd  [default: 0.25, 0.5, 1, "
               "2 and 4 bits per input pixel].")
-@click.option("--steps", type=click.IntRange(min=1), default=1000, show_default=True,
-              help="Optimiser steps of every trained method (the neural baselines at least; see --match-time).")
+@click.option("--steps", type=click.IntRange(min=1),
+              help="Optimiser steps of every trained method (the neural baselines at least; see --match-time)  "
+                   "[default: dfc encode's for an image, 3000; --solve 1000].")
 @click.option("--sweep/--no-sweep", default=True, show_default=True,
               help="Tune the hash grid and the ReLU field per budget: try each candidate configuration for "
               "--sweep-steps and train the best at 1x on the input in full.")
@@ -161,10 +162,11 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
         raise click.UsageError("--budgets applies to --rd")
     from ..bench.compare import ZOOMS, BenchSettings, markdown_table, run_bench, scene_inputs, write_outputs
 
-    settings = BenchSettings(steps=steps, batch_size=batch_size or 1 << 14, size=size, render=render, spp=spp,
-                             zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, None), target_bytes=target_bytes,
-                             max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=sweep,
-                             sweep_steps=sweep_steps, match_time=match_time, pixel_grid=pixel_grid)
+    settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14, size=size,
+                             render=render, spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, None),
+                             target_bytes=target_bytes, max_triangles=max_triangles, seed=seed,
+                             device=check_device(device), sweep=sweep, sweep_steps=sweep_steps, match_time=match_time,
+                             pixel_grid=pixel_grid)
     if rd:
         from ..bench.rd import require_matplotlib
 
@@ -268,9 +270,9 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     """``dfc bench --solve``: see ``dfc.bench.solve``."""
     from ..bench.solve import SOLVE_METHODS, SolveBenchSettings, markdown_table, run_solve_bench, write_outputs
 
-    settings = SolveBenchSettings(steps=steps, batch_size=batch_size or 1 << 10, size=size or 256,
-                                  methods=_methods(methods, SOLVE_METHODS), max_triangles=max_triangles, seed=seed,
-                                  device=check_device(device))
+    settings = SolveBenchSettings(steps=steps or SolveBenchSettings.steps, batch_size=batch_size or 1 << 10,
+                                  size=size or 256, methods=_methods(methods, SOLVE_METHODS),
+                                  max_triangles=max_triangles, seed=seed, device=check_device(device))
     settings.check()
 
     def progress(message: str) -> None:

@@ -93,7 +93,8 @@ def _curves_arg(ctx, param, value):
                    "steps) until the file's PSNR, as the summary measures it (FEM: at the nodes), reaches DB; the "
                    "summary says when it does not.")
 @click.option("--steps", type=click.IntRange(min=1), default=None,
-              help="Optimiser steps  [default: 1000; a sample set: 12 passes over its samples, at least 1000].")
+              help="Optimiser steps  [default: an image 3000; a sample set 12 passes over its samples, at least 1000; "
+                   "FEM data and frames 1000].")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
 @click.option("--feature-bits", type=click.IntRange(1, 16), default=None,
@@ -153,9 +154,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     of core (--epoch-pixels, --workers, torchrun, or an EXR above 4096 x 4096) at its held-out pixels. An existing
     OUTPUT is replaced, atomically, once the new file is complete.
     """
-    from ..codec import EncodeSettings, sample_steps
+    from ..codec import EncodeSettings, default_steps
     from ..field.quantize import DEFAULT_FEATURE_BITS
-    from ..train.fit import DEFAULT_STEPS
 
     if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
         raise click.UsageError("give at most one of --max-area, --edge-length and --target-bytes")
@@ -179,7 +179,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if curves_path == "auto" and kind != "image":
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
-                                  target_bytes=target_bytes, target_psnr=target_psnr, steps=steps or DEFAULT_STEPS,
+                                  target_bytes=target_bytes, target_psnr=target_psnr, steps=steps,
                                   batch_size=batch_size, dim=dim, feature_bits=feature_bits,
                                   mesh_bits=mesh_bits, weight_bits=weight_bits or None, feature_coding=feature_coding,
                                   refine=refine, loss=loss, seed=seed, device=check_device(device),
@@ -202,8 +202,8 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if not out_of_core:
             signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
                                  fields.split(",") if fields else None)
-            if kind == "samples" and steps is None:
-                settings = replace(settings, steps=sample_steps(len(signal), batch_size))
+        if steps is None:  # resolved here for the progress bar
+            settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0, batch_size))
         if curves_path == "auto":
             curves, curves_info = _auto_curves(signal)
         else:
