@@ -294,9 +294,10 @@ def fit_bands(
     from .distributed import world
 
     rank, size = world()
+    steps = IMAGE_STEPS if steps is None else steps
     model, run = _model_for(float(stats.lo.min()), float(stats.hi.max()), stats.mean, stats.log_mean, mesh,
-                            channels or source.channels, loss, IMAGE_STEPS if steps is None else steps, qat_steps,
-                            dim, seed, device, (data_range, tonemap), model_kw)
+                            channels or source.channels, loss, steps, qat_steps, dim, seed, device,
+                            (data_range, tonemap), model_kw)
     local = batch_size // size + (rank < batch_size % size)
     if local < 1:
         raise InputError(f"batch size {batch_size} is smaller than the number of ranks ({size})")
