@@ -51,7 +51,6 @@ def test_the_decoder_learns_at_its_factor_of_the_features_rate(scene_mesh, decod
     assert max(decoder) == pytest.approx(decoder_lr * 1e-2, rel=1e-3)
 
 
-
 def test_image_fits_slow_the_decoder_only_when_they_are_long():
     from dfc.train.fit import DECODER_LR, DECODER_LR_MIN_STEPS, image_decoder_lr
 
