@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from dfc.bench.baselines import BASELINES, HashGrid, Raster, ReluField, fit_baseline
+from dfc.bench.baselines import (
+    BASELINES,
+    HashGrid,
+    Raster,
+    ReluField,
+    TanhField,
+    fit_baseline,
+)
 from dfc.bench.baselines.base import fp16_bytes
 from dfc.bench.baselines.hashgrid import PRIMES, level_layout
 from dfc.bench.baselines.raster import area_resize, exr_bytes
@@ -229,19 +236,28 @@ def test_relu_field_trains_coarse_to_fine():
     torch.testing.assert_close(model(xy).detach(), before, atol=1e-5, rtol=0)
 
 
-def test_relu_field_reaches_hdr_values():
-    """HDR values (≈ 0.05 … 80) are reachable within a few steps: the grid stores them in units of the maximum."""
+def test_relu_field_settles_hdr_colours_in_its_unit():
+    """HDR values (≈ 0.05 … 80): the grid stores them in units of the square root of the maximum (``hdr_unit``),
+    which the bench's loss settles within a few hundred steps where a unit of the maximum keeps the dark colours
+    off (tone-mapped PSNR, the bench's measure); the tanh field keeps the maximum, its range."""
     from dfc.bench.scenes import hdr_scene
+    from dfc.metrics import quality_scale
+    from dfc.train.losses import auto_loss
 
     hdr = hdr_scene().render(32, 32, spp=2)
-    model = ReluField.for_budget(8_000, DOMAIN, RGB, image=hdr)
-    assert model.value_scale == pytest.approx(float(hdr.max())) and model.hi is None
-    model.init_mean(torch.from_numpy(hdr.reshape(-1, 3).mean(0)))
-    fit_baseline(model, image_sampler(hdr, DOMAIN, 1024), 120, loss="relmse")
-    with torch.no_grad():
-        out = model(_centres(32)).numpy().reshape(32, 32, 3)
-    span = float(hdr.max() - hdr.min())
-    assert psnr(hdr, out, data_range=span) > 25
+    scale = quality_scale(hdr)
+    assert TanhField.for_budget(8_000, DOMAIN, RGB, image=hdr).value_scale == pytest.approx(float(hdr.max()))
+    scores = {}
+    for unit in ("hdr_unit", "maximum"):
+        model = ReluField.for_budget(8_000, DOMAIN, RGB, image=hdr)
+        assert model.value_scale == pytest.approx(float(hdr.max()) ** 0.5) and model.hi is None
+        if unit == "maximum":
+            model.value_scale = float(hdr.max())
+        model.init_mean(torch.from_numpy(hdr.reshape(-1, 3).mean(0)))
+        fit_baseline(model, image_sampler(hdr, DOMAIN, 1024), 300, loss=auto_loss(hdr))
+        with torch.no_grad():
+            scores[unit] = scale.psnr(hdr, model(_centres(32)).numpy().reshape(32, 32, 3))
+    assert scores["hdr_unit"] > 22 and scores["hdr_unit"] > scores["maximum"] + 5, scores
 
 
 # -- the physics-informed baselines (dfc solve / dfc bench --solve) ------------------------------------------

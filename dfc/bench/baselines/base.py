@@ -68,8 +68,9 @@ class Baseline(nn.Module):
     domain : (x0, y0, x1, y1) float
     channels : list of output channel names
     value_scale : float, parametric baselines output ``value_scale ×`` their raw values. With Adam's
-        fixed step sizes this lets one learning rate serve LDR (scale 1) and HDR (scale = the data's
-        largest magnitude, ``value_scale(image)``); one number of the architecture, not counted in bytes.
+        fixed step sizes this lets one learning rate serve LDR (scale 1) and HDR (the tanh field: the data's
+        largest magnitude, ``value_scale(image)``, its range; the ReLU field: ``relu_field.hdr_unit``; the hash
+        grid's MLP scales itself); one number of the architecture, not counted in bytes.
 
     ``quantization`` mirrors ``FieldModel.quantization`` so ``dfc.train.loop.train`` can run
     quantisation-aware steps on a baseline: any non-None value makes every parameter read as its

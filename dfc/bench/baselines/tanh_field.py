@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from .base import value_scale
 from .relu_field import COARSE_TO_FINE, ReluField
 
 __all__ = ["TanhField"]
@@ -48,7 +49,7 @@ class TanhField(ReluField):
         """The grid ``ReluField.for_budget`` picks for ``n_bytes`` (the most nodes that fit, the domain's aspect).
         ``image`` only sets the output unit (``base.value_scale``); ``seed`` is unused (deterministic)."""
         grid = ReluField.for_budget(n_bytes, domain, channels, image=image, stages=stages)
-        return cls(domain, channels, shape=grid.shape, stages=stages, value_scale=grid.value_scale, device=device)
+        return cls(domain, channels, shape=grid.shape, stages=stages, value_scale=value_scale(image), device=device)
 
     def init_mean(self, mean: Tensor) -> None:
         """Fill the grid with ``atanh`` of a constant (C,) value (the mean prescribed value)."""
