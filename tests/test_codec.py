@@ -48,6 +48,24 @@ def test_quantised_model_round_trips_exactly(small_mesh, kw):
     assert back.header["encoder"] == {"note": "test"}
 
 
+def test_the_header_records_only_the_settings_that_differ_and_is_compact(small_mesh):
+    """The ``encoder`` record names the software, the curves' source, the settings that differ from that version's
+    defaults and what the encoder adds; the header JSON carries no whitespace (its bytes count in a small file)."""
+    import zstandard
+
+    from dfc import __version__
+    from dfc.codec import encoder_info
+    from dfc.io.container import _split_chunks
+
+    info = encoder_info(replace(EncodeSettings(), seed=3, steps=200), "c.json", {"input": "image 8x8"})
+    assert info == {"software": f"dfc {__version__}", "source": "c.json", "seed": 3, "steps": 200,
+                    "input": "image 8x8"}
+    blob, _ = encode_dfield(to_contents(_random_model(small_mesh), info))
+    text = zstandard.ZstdDecompressor().decompress(bytes(_split_chunks(blob)[0][b"HEAD"]))
+    assert b'"seed":3,' in text and b", " not in text and b": " not in text
+    assert loads(blob).header["encoder"] == info
+
+
 def test_from_contents_refuses_mismatched_weights(small_mesh):
     contents = decode_dfield(encode_dfield(to_contents(_random_model(small_mesh)))[0])
     contents.mlp.pop("layers.2.bias")

@@ -459,7 +459,7 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
         raise FormatError(f"cannot write: weight_bits must be None or in {MIN_WEIGHT_BITS}..{MAX_WEIGHT_BITS}, "
                           f"got {weight_bits}")
     try:
-        text = json.dumps(header, allow_nan=False, ensure_ascii=False).encode("utf-8")
+        text = json.dumps(header, allow_nan=False, ensure_ascii=False, separators=(",", ":")).encode("utf-8")
     except (TypeError, ValueError) as exc:
         raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
     mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level, validated=mesh_validated)
