@@ -4,14 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from dfc.bench.baselines import (
-    BASELINES,
-    HashGrid,
-    Raster,
-    ReluField,
-    TanhField,
-    fit_baseline,
-)
+from dfc.bench.baselines import BASELINES, HashGrid, Raster, ReluField, TanhField, fit_baseline
 from dfc.bench.baselines.base import fp16_bytes
 from dfc.bench.baselines.hashgrid import PRIMES, level_layout
 from dfc.bench.baselines.raster import area_resize, exr_bytes

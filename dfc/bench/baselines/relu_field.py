@@ -46,7 +46,8 @@ def hdr_unit(image) -> float:
     within the 200 steps of a tuning candidate but cannot settle the dark ones (on the ``hdr`` scene, 84 at most,
     32 KB, 3,000 steps: 20.2 dB tone-mapped at 1×, still rising 0.7 dB over the last tenth), a unit of 1 settles them
     but starts far too slowly (5.9 dB after 200 steps, so a sweep never picks it). The geometric mean does both:
-    23.9 dB after 200 steps and 25.4 after 3,000 (at 4 / 16 KB: 19.9 / 23.9 against 18.5 / 21.3 with the maximum).
+    23.9 dB after 200 steps and 25.4 after 3,000 (after 3,000 at 4 / 16 KB: 19.9 / 23.9 against 18.5 / 21.3 dB with
+    the maximum).
     """
     return math.sqrt(value_scale(image))
 
@@ -110,8 +111,8 @@ class ReluField(Baseline):
         ≤ ``n_bytes``. Raises ValueError when not even 2 × 2 nodes fit.
 
         Clamp range: ``lo`` defaults to min(0, image minimum) (0 without an image); ``hi`` to 1 when the
-        image lies in [0, 1] (or there is no image), else no upper clamp. The grid's unit is ``HDR_UNIT``'s.
-        ``seed`` seeds the linear map (when ``features`` differs from C).
+        image lies in [0, 1] (or there is no image), else no upper clamp. The grid stores values in units of
+        ``hdr_unit(image)``. ``seed`` seeds the linear map (when ``features`` differs from C).
         """
         if lo is None:
             lo = min(0.0, float(np.min(image))) if image is not None else 0.0
