@@ -9,7 +9,7 @@ __version__ = "0.1.0"
 
 import importlib
 
-from .errors import CurveError, DfcError, FormatError, InputError, MeshError
+from .errors import CurveError, DfcError, FormatError, InputError, MeshError, SettingsError
 from .geometry.curves import Curves, SideValues, read_curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import triangulate
@@ -20,7 +20,11 @@ _LAZY = {
     "fit_image": "dfc.train.fit",
     "fit_samples": "dfc.train.fit",
     "fit_frames": "dfc.train.fit",
-    "EncodeSettings": "dfc.codec",
+    "EncodeSettings": "dfc.settings",
+    "MeshSettings": "dfc.settings",
+    "FitSettings": "dfc.settings",
+    "StorageSettings": "dfc.settings",
+    "RunSettings": "dfc.settings",
     "encode_image": "dfc.codec",
     "encode_bands": "dfc.codec",
     "ExrBands": "dfc.io.bands",
@@ -48,6 +52,7 @@ __all__ = [
     "MeshError",
     "InputError",
     "FormatError",
+    "SettingsError",
     *_LAZY,
 ]
 

@@ -26,6 +26,7 @@ from .metrics import data_range as signal_range
 from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set,
                    sample_mesh_size, sized_mesh)
 from .render import values_at
+from .settings import EncodeSettings
 from .train.fit import DEFAULT_STEPS, IMAGE_STEPS
 
 __all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "default_steps", "encode_bands",
@@ -64,49 +65,6 @@ HOLDOUT_MIN_SAMPLES = 100
 
 Callback = Callable[..., None]
 """``callback(step, loss, batch_psnr)`` after each optimiser step (0-dim tensors)."""
-
-
-@dataclass
-class EncodeSettings:
-    """Every knob of an encode; stored in the file's header (``encoder``) so a decode never depends on defaults.
-
-    Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``; then ``refine``
-    rounds of error-driven refinement (``_refine``: each splits the triangles holding ``dfc.rate.REFINE_SHARE`` of
-    the fit's squared error, at most ``refine_fraction`` of the triangle count, or under a byte target as many as it
-    still pays for, and refits for ``refine_steps``, default half of ``steps``, from the previous fit; images read
-    whole and FEM solutions; None: one round under a byte target, up to ``TARGET_PSNR_ROUNDS`` under ``target_psnr``
-    (stopping once the fit's 1× PSNR, anti-aliased, or nodal PSNR reaches it), else none). Fit
-    (``dfc.train.fit``): ``steps`` (None: ``default_steps`` of the input), ``batch_size``, ``dim``, ``hidden``,
-    ``layers``, ``qat_steps``, ``loss``, ``seed``, ``device``; out-of-core fits (``encode_bands``): ``epoch_pixels``
-    (None: sized to memory) and ``workers`` (ranks, recorded). Storage (spec/dfield.md): ``feature_bits`` (None:
-    ``DEFAULT_FEATURE_BITS``, or the first of ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte
-    target too small for it), ``feature_coding`` ("predicted": ``FEAC``, "plain": the 1.0 ``FEAT``), ``weight_bits``
-    (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
-    """
-
-    max_triangles: int | None = None
-    max_area: float | None = None
-    edge_length: float | None = None
-    target_bytes: int | None = None
-    target_psnr: float | None = None
-    refine: int | None = None
-    refine_steps: int | None = None
-    refine_fraction: float = 0.25
-    steps: int | None = None
-    batch_size: int = 1 << 14
-    dim: int = 5
-    hidden: int = 64
-    layers: int = 2
-    feature_bits: int | None = None
-    feature_coding: str = "predicted"
-    weight_bits: int | None = 8
-    mesh_bits: int = 20
-    qat_steps: int | None = None
-    loss: str = "auto"
-    seed: int = 0
-    device: str = "cpu"
-    epoch_pixels: int | None = None
-    workers: int = 1
 
 
 @dataclass
@@ -193,9 +151,11 @@ def encoder_info(settings, source: str, extra: dict) -> dict:
 
     Every setting written out took 456 of the 2 KB of a small file (the zstd-compressed header JSON); the settings
     that differ keep the record complete at about a third of that."""
-    defaults = type(settings)()
-    changed = {f.name: getattr(settings, f.name) for f in fields(settings)
-               if getattr(settings, f.name) != getattr(defaults, f.name)}
+    def named(s) -> dict:
+        return s.to_dict() if isinstance(s, EncodeSettings) else {f.name: getattr(s, f.name) for f in fields(s)}
+
+    defaults = named(type(settings)())
+    changed = {name: value for name, value in named(settings).items() if value != defaults[name]}
     return {"software": f"dfc {__version__}", "source": source, **changed, **extra}
 
 
@@ -324,13 +284,10 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     seconds["scan_s"] = time.perf_counter() - clock
     clock = time.perf_counter()
     scale = quality_scale(np.array([stats.lo.min(), stats.hi.max()]))
-    model = fit_bands(source, mesh, stats, steps=settings.steps, batch_size=settings.batch_size,
-                      epoch_pixels=settings.epoch_pixels,
+    model = fit_bands(source, mesh, stats, settings.fit, epoch_pixels=settings.epoch_pixels,
                       mixed=mixed if stats.mixed <= MAX_DROPPED_FRACTION * stats.count else None, held_out=held_out,
-                      dim=settings.dim, seed=settings.seed, loss=settings.loss, device=settings.device,
-                      qat_steps=settings.qat_steps, feature_bits=settings.feature_bits,
-                      weight_bits=settings.weight_bits, hidden=settings.hidden, layers=settings.layers,
-                      callback=callback, channels=channels, data_range=scale.data_range, tonemap=scale.tonemap)
+                      feature_bits=settings.feature_bits, weight_bits=settings.weight_bits, callback=callback,
+                      channels=channels, data_range=scale.data_range, tonemap=scale.tonemap)
     seconds["fit_s"] = time.perf_counter() - clock
     distributed.check_replicas(model)
     distributed.barrier()
@@ -551,11 +508,9 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
     mesh_settings, mesh = (settings, mesh) if mesh is not None else sized_mesh(curves, settings, channels, size_of)
     seconds = {"mesh_s": time.perf_counter() - clock}
     clock = time.perf_counter()
-    fit_kw = {"batch_size": settings.batch_size, "dim": settings.dim, "seed": settings.seed, "loss": settings.loss,
-              "device": settings.device, "feature_bits": settings.feature_bits, "weight_bits": settings.weight_bits,
-              "callback": callback, "channels": channels, "hidden": settings.hidden, "layers": settings.layers,
-              **fit_kw}
-    model = fit_fn(signal, mesh, steps=settings.steps, qat_steps=settings.qat_steps, **fit_kw)
+    fit_kw = {"feature_bits": settings.feature_bits, "weight_bits": settings.weight_bits, "callback": callback,
+              "channels": channels, **fit_kw}
+    model = fit_fn(signal, mesh, settings.fit, **fit_kw)
     seconds["fit_s"] = time.perf_counter() - clock
     if settings.refine and residual is not None:
         clock = time.perf_counter()
@@ -593,7 +548,7 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
             break
         extra = np.concatenate([extra, points])
         mesh = build_mesh(curves, mesh_settings, extra_points=extra)
-        model = fit_fn(signal, mesh, steps=steps, qat_steps=None, init=model, **fit_kw)
+        model = fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model, **fit_kw)
     return model
 
 

@@ -9,6 +9,10 @@ class DfcError(Exception):
     """Base class of every error dfc raises on purpose."""
 
 
+class SettingsError(DfcError, ValueError):
+    """A setting breaks its rule (``dfc.settings``): the message names the setting and states the rule."""
+
+
 class CurveError(DfcError, ValueError):
     """A curves file (SVG / JSON / diffusion-curve XML) is unreadable or malformed."""
 

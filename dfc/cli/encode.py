@@ -12,11 +12,13 @@ import click
 import numpy as np
 
 from ..io.atomic import write_bytes_atomic
+from ..settings import FEATURE_CODINGS, LOSSES, FitSettings, RunSettings, StorageSettings
 from .options import (
     binary_stream,
     check_device,
     json_option,
     note,
+    option_names,
     progress_bar,
     quiet_option,
     read_curves_checked,
@@ -59,12 +61,6 @@ def _times(ctx, param, value):
         raise click.BadParameter(f"expected comma-separated numbers, got {value!r}") from None
 
 
-def _weight_bits(ctx, param, value):
-    if value == 1:
-        raise click.BadParameter("integer weights need 2 to 16 bits (a sign and a magnitude); 0 stores float16")
-    return value
-
-
 def _curves_arg(ctx, param, value):
     """``--curves``: required (the message names ``auto``); a file that exists, ``-`` or ``auto``."""
     if value is None:
@@ -84,37 +80,40 @@ def _curves_arg(ctx, param, value):
                    "(a file named auto: ./auto).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False, allow_dash=True),
               help="The .dfield file to write (- for standard output).")
-@click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on the mesh's triangle count.")
-@click.option("--max-area", type=click.FloatRange(min=0, min_open=True), help="Largest triangle area (domain units²).")
-@click.option("--edge-length", type=click.FloatRange(min=0, min_open=True), help="Target edge length (domain units).")
-@click.option("--target-bytes", type=click.IntRange(min=1), help="Size the mesh so that the file is at most this big.")
-@click.option("--target-psnr", type=click.FloatRange(min=0, min_open=True), metavar="DB",
+@click.option("--max-triangles", type=int, help="Cap on the mesh's triangle count (at least 2).")
+@click.option("--max-area", type=float, help="Largest triangle area (domain units²).")
+@click.option("--edge-length", type=float, help="Target edge length (domain units).")
+@click.option("--target-bytes", type=int, help="Size the mesh so that the file is at most this big.")
+@click.option("--target-psnr", type=float, metavar="DB",
               help="Image input read whole or FEM input: refine the mesh (up to 4 rounds, each refitting for half the "
                    "steps) until the file's PSNR, as the summary measures it (FEM: at the nodes), reaches DB; the "
                    "summary says when it does not.")
-@click.option("--steps", type=click.IntRange(min=1), default=None,
+@click.option("--steps", type=int, default=None,
               help="Optimiser steps  [default: an image 3000; a sample set 12 passes over its samples, at least 1000; "
                    "FEM data and frames 1000].")
-@click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Samples per step.")
-@click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
-@click.option("--feature-bits", type=click.IntRange(1, 16), default=None,
+@click.option("--batch-size", type=int, default=FitSettings.batch_size, show_default=True, help="Samples per step.")
+@click.option("--dim", type=int, default=FitSettings.dim, show_default=True, help="Feature channels per vertex (1..64).")
+@click.option("--feature-bits", type=int, default=None,
               help="Bits per stored feature value  [default: 10; 8, else 6, when --target-bytes is too small for "
                    "the smallest mesh at 10].")
-@click.option("--mesh-bits", type=click.IntRange(1, 23), default=20, show_default=True,
-              help="Draco quantisation bits of the vertex positions.")
-@click.option("--weight-bits", type=click.IntRange(0, 16), default=8, show_default=True, callback=_weight_bits,
-              help="Bits per integer MLP weight (per-row scales, learnt in the quantisation-aware steps); 0: float16.")
-@click.option("--feature-coding", type=click.Choice(["predicted", "plain"]), default="predicted", show_default=True,
+@click.option("--mesh-bits", type=int, default=StorageSettings.mesh_bits, show_default=True,
+              help="Draco quantisation bits of the vertex positions (1..23).")
+@click.option("--weight-bits", type=int, default=StorageSettings.weight_bits, show_default=True,
+              help="Bits per integer MLP weight (2..16; per-row scales, learnt in the quantisation-aware steps); "
+                   "0: float16.")
+@click.option("--feature-coding", type=click.Choice(FEATURE_CODINGS), default=StorageSettings.feature_coding,
+              show_default=True,
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
-@click.option("--refine", type=click.IntRange(0, 16),
+@click.option("--refine", type=int,
               help="Image input read whole or FEM input: rounds of error-driven refinement after the fit (split the "
                    "triangles with the largest error, refit for half the steps). Without --target-bytes each round "
                    "adds triangles, so the file grows; with it a round adds as many as the target still pays for  "
                    "[default: 1 with --target-bytes, else 0].")
-@click.option("--loss", type=click.Choice(["auto", "mse", "relmse", "logmse"]), default="auto", show_default=True,
+@click.option("--loss", type=click.Choice(LOSSES), default=FitSettings.loss, show_default=True,
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
-@click.option("--device", default="cpu", show_default=True, help="torch device for the fit (cpu, cuda, cuda:1, ...).")
+@click.option("--seed", type=int, default=FitSettings.seed, show_default=True, help="Seeds features, decoder and sampling.")
+@click.option("--device", default=FitSettings.device, show_default=True,
+              help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
 @click.option("--channels", help="Comma-separated image channels to encode (default: R,G,B[,A] or all).")
 @click.option("--fit-curves-to-image", is_flag=True,
@@ -126,18 +125,17 @@ def _curves_arg(ctx, param, value):
 @click.option("--reference", "reference_path", type=click.Path(exists=True, dir_okay=False),
               help="Sample sets: exact values on a pixel grid over the domain (.exr, or .npz as dfc wos --reference "
                    "writes); the summary adds the file's PSNR against them.")
-@click.option("--epoch-pixels", type=click.IntRange(min=1),
+@click.option("--epoch-pixels", type=int,
               help="Image input read out of core: stratified pixels drawn per epoch, band by band  [default: sized to "
                    "512 MiB of samples, at most every pixel]. EXR images above 4096 x 4096 pixels are always read so.")
-@click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
+@click.option("--workers", type=int, default=RunSettings.workers, show_default=True,
               help="Image input: train data-parallel on N local ranks (torch.distributed: gloo on CPU, NCCL with "
                    "--device cuda, one GPU per rank), each reading its own bands; --batch-size is split between them. "
                    "Across machines use torchrun (README).")
 @json_option
 @quiet_option
-def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, target_psnr, steps,
-            batch_size, dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, device, channels,
-            fit_curves_to_image, times, fields, fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
+def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling, reference_path,
+            json_path, quiet, **setting_options):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
     sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
@@ -154,13 +152,12 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
     of core (--epoch-pixels, --workers, torchrun, or an EXR above 4096 x 4096) at its held-out pixels. An existing
     OUTPUT is replaced, atomically, once the new file is complete.
     """
-    from ..codec import EncodeSettings, default_steps
+    from ..codec import default_steps
     from ..field.quantize import DEFAULT_FEATURE_BITS
 
-    if sum(v is not None for v in (max_area, edge_length, target_bytes)) > 1:
-        raise click.UsageError("give at most one of --max-area, --edge-length and --target-bytes")
-    if target_bytes is not None and target_psnr is not None:
-        raise click.UsageError("give --target-bytes or --target-psnr, not both")
+    settings = encode_settings(setting_options)
+    target_bytes, target_psnr, refine = settings.target_bytes, settings.target_psnr, settings.refine
+    epoch_pixels, workers = settings.epoch_pixels, settings.workers
     if output != "-" and not output.lower().endswith(".dfield"):
         raise click.BadParameter(f"must end in .dfield, got {output!r}", param_hint="'-o' / '--output'")
     if [*input_paths, curves_path].count("-") > 1:
@@ -178,12 +175,6 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
             raise click.UsageError(f"--reference applies to sample sets, not {kind} input")
         if curves_path == "auto" and kind != "image":
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
-        settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
-                                  target_bytes=target_bytes, target_psnr=target_psnr, steps=steps,
-                                  batch_size=batch_size, dim=dim, feature_bits=feature_bits,
-                                  mesh_bits=mesh_bits, weight_bits=weight_bits or None, feature_coding=feature_coding,
-                                  refine=refine, loss=loss, seed=seed, device=check_device(device),
-                                  epoch_pixels=epoch_pixels, workers=workers)
         if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
             raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
                                      param_hint="'--workers'")
@@ -202,8 +193,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if not out_of_core:
             signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
                                  fields.split(",") if fields else None)
-        if steps is None:  # resolved here for the progress bar
-            settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0, batch_size))
+        if settings.steps is None:  # resolved here for the progress bar
+            settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
+                                                             settings.batch_size))
         if curves_path == "auto":
             curves, curves_info = _auto_curves(signal)
         else:
@@ -233,7 +225,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         what = "--target-psnr" if target_psnr is not None else "the default FEM target of"
         note(f"{what} {report.target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
              "triangles after the refinement rounds (more --steps, or --refine N for more rounds, may reach it)", quiet)
-    if feature_bits is None and report.feature_bits != DEFAULT_FEATURE_BITS:
+    if setting_options["feature_bits"] is None and report.feature_bits != DEFAULT_FEATURE_BITS:
         note(f"--target-bytes {target_bytes} is too small for the smallest mesh with {DEFAULT_FEATURE_BITS}-bit "
              f"features: they are stored with {report.feature_bits} bits", quiet)
     if report.total_bytes > input_bytes:
@@ -244,6 +236,21 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
 
         write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
                                **({"curves": curves_info} if curves_info else {}), **asdict(report)})
+
+
+def encode_settings(options: dict):
+    """The ``EncodeSettings`` of ``dfc encode``'s setting options (named as its fields; ``--weight-bits 0`` is None,
+    float16 weights; ``--device`` must name a device present here): the one place the command makes them, so it
+    refuses what ``EncodeSettings`` refuses, as a usage error naming the options."""
+    from ..errors import SettingsError
+    from ..settings import EncodeSettings
+
+    options = {**options, "weight_bits": options["weight_bits"] or None, "device": check_device(options["device"])}
+    try:
+        return EncodeSettings(**options)
+    except SettingsError as e:
+        message = option_names(str(e), options).replace("or None for float16", "or 0 for float16")
+        raise click.UsageError(message.replace(" or None,", ",")) from None
 
 
 def _auto_curves(image):

@@ -75,6 +75,16 @@ def default_size(window: tuple[float, float, float, float], domain) -> tuple[int
     return max(1, round(w * scale)), max(1, round(h * scale))
 
 
+def option_names(message: str, names) -> str:
+    """``message`` (an API error naming settings) with each of ``names`` (settings, Python names) written as the
+    option that sets it: ``max_area`` → ``--max-area``."""
+    import re
+
+    for name in sorted(names, key=len, reverse=True):
+        message = re.sub(rf"\b{name}\b", "--" + name.replace("_", "-"), message)
+    return message
+
+
 def check_device(device: str) -> str:
     """Validate a torch device name; ``click.BadParameter`` when it is malformed or not available here."""
     import torch

@@ -6,6 +6,7 @@ sampler (``dfc.train.samplers``), with defaults measured on the sample scene. De
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import fields, replace
 
 import numpy as np
 import torch
@@ -17,12 +18,13 @@ from ..field.quantize import DEFAULT_FEATURE_BITS
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
 from ..metrics import quality_scale
+from ..settings import FitSettings
 from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss, auto_loss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "fit", "fit_bands", "fit_frames",
-           "fit_image", "fit_samples", "image_decoder_lr"]
+__all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "FitSettings", "fit", "fit_bands",
+           "fit_frames", "fit_image", "fit_samples", "fit_settings", "image_decoder_lr"]
 
 DECODER_LR = 0.2
 """Image fits (``fit_image``, ``fit_bands``) train the decoder at this factor on the features' learning rate
@@ -110,19 +112,25 @@ MAX_CACHED_SAMPLES = 1 << 22
 """``fit_image`` caches point location for at most this many samples (≈ 100 bytes each)."""
 MAX_CARRY_POINTS = 1 << 18
 """``fit_samples`` carries a previous fit over at about this many of the sample positions."""
+_FIT_FIELDS = frozenset(f.name for f in fields(FitSettings))
+
+
+def fit_settings(settings: FitSettings | None, overrides: dict, default_steps: int) -> tuple[FitSettings, dict]:
+    """(``settings`` with ``overrides`` that name ``FitSettings`` fields applied and ``steps`` None resolved to
+    ``default_steps``, ``FieldModel`` keywords: ``hidden`` and ``layers`` from them and the other ``overrides``).
+    Raises ``SettingsError`` for a value that breaks a ``FitSettings`` rule."""
+    settings = replace(settings or FitSettings(), **{k: v for k, v in overrides.items() if k in _FIT_FIELDS})
+    if settings.steps is None:
+        settings = replace(settings, steps=default_steps)
+    model_kw = {k: v for k, v in overrides.items() if k not in _FIT_FIELDS}
+    return settings, {"hidden": settings.hidden, "layers": settings.layers, **model_kw}
 
 
 def fit_image(
     image,
     mesh,
+    settings: FitSettings | None = None,
     *,
-    steps: int | None = None,
-    batch_size: int = 1 << 14,
-    dim: int = 5,
-    seed: int = 0,
-    loss: str = "auto",
-    device: str = "cpu",
-    qat_steps: int | None = None,
     feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
@@ -134,7 +142,7 @@ def fit_image(
     init: FieldModel | None = None,
     exclude: np.ndarray | None = None,
     tonemap: bool | None = None,
-    **model_kw,
+    **overrides,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster covering ``mesh.domain``.
 
@@ -142,12 +150,14 @@ def fit_image(
     ----------
     image : (H, W, C) float array of linear values, or a ``dfc.io.image.Image``
     mesh : dfc.geometry.mesh.Mesh
-    steps : optimiser steps (default ``IMAGE_STEPS``)
-    batch_size : samples per step (stratified, see ``image_sampler``)
-    dim : feature channels
-    seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
-    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (any value > 1), else "mse"
-    qat_steps : quantisation-aware final steps (default ``DEFAULT_QAT_FRACTION`` of ``steps``)
+    settings : ``dfc.settings.FitSettings`` (default: its defaults), of which
+        steps : optimiser steps (None: ``IMAGE_STEPS``)
+        batch_size : samples per step (stratified, see ``image_sampler``)
+        dim : feature channels; hidden, layers : the decoder's
+        seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
+        loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (any value > 1), else "mse"
+        qat_steps : quantisation-aware final steps (None: ``DEFAULT_QAT_FRACTION`` of ``steps``)
+        device : torch device
     feature_bits : bits of the features during those steps (as the file will store them)
     weight_bits : bits of the integer weight matrices during those steps (None: fp16, as ``MLPW`` stores them)
     callback : ``callback(step, loss, batch_psnr)`` after each step
@@ -163,8 +173,9 @@ def fit_image(
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at every pixel centre) instead of from scratch
     exclude : optional (H, W) bool, pixels never trained on besides the mixed ones (held out to measure the fit)
-    **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform; the transform
-        defaults to "log" for HDR images whose values are all > -1, else "identity")
+    **overrides : ``FitSettings`` fields, applied on top of ``settings`` (``fit_image(image, mesh, steps=1000)``),
+        and ``FieldModel`` options (activation, oneblob_bins, transform; the transform defaults to "log" for HDR
+        images whose values are all > -1, else "identity"). ``SettingsError`` for a value that breaks a rule.
 
     Returns
     -------
@@ -176,9 +187,8 @@ def fit_image(
     if channels is None:
         channels = getattr(image, "channels", None) or default_channels(pixels.shape[2])
     values = pixels.reshape(-1, pixels.shape[2])
-    steps = IMAGE_STEPS if steps is None else steps
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
-                            model_kw)
+    settings, model_kw = fit_settings(settings, overrides, IMAGE_STEPS)
+    model, run = _new_model(values, mesh, channels, settings, (data_range, tonemap), model_kw)
     field = model.field
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
@@ -196,25 +206,24 @@ def fit_image(
     n = pixels.shape[0] * pixels.shape[1]
     cached = n <= MAX_CACHED_SAMPLES
     sampler = image_sampler(
-        pixels, mesh.domain, batch_size, device=device, query=field.query if cached else None,
-        jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=seed, exclude=exclude,
+        pixels, mesh.domain, settings.batch_size, device=settings.device, query=field.query if cached else None,
+        jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=settings.seed, exclude=exclude,
     )
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
         weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
 
 
-def _new_model(values: np.ndarray, mesh, channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw,
-               times=None):
+def _new_model(values: np.ndarray, mesh, channels, settings: FitSettings, scale, model_kw, times=None):
     """A fresh ``FieldModel`` for targets ``values`` (M, C) and the ``fit`` settings derived from them
     (one feature slice per entry of ``times`` when given); see ``_model_for``."""
     log_mean = np.log1p(np.maximum(values, 0.0)).mean(axis=0, dtype=np.float64)
     return _model_for(float(values.min()), float(values.max()), values.mean(axis=0, dtype=np.float64), log_mean, mesh,
-                      channels, loss, steps, qat_steps, dim, seed, device, scale, model_kw, times)
+                      channels, settings, scale, model_kw, times)
 
 
-def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mesh, channels, loss, steps, qat_steps,
-               dim, seed, device, scale, model_kw, times=None):
+def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mesh, channels, settings: FitSettings,
+               scale, model_kw, times=None):
     """A fresh ``FieldModel`` for targets whose values span ``lo .. hi``, with per-channel ``mean`` (C,) and mean
     ``log_mean`` (C,) of ``log(1 + max(v, 0))``, and the ``fit`` settings derived from them.
 
@@ -228,6 +237,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     from ..field.feature_field import FeatureField
 
     hdr = hi > 1.0
+    loss, steps, qat_steps, seed = settings.loss, settings.steps, settings.qat_steps, settings.seed
     if loss == "auto":
         loss = auto_loss(np.array([lo, hi]))
     if hdr and lo > -1.0:
@@ -236,7 +246,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     if qat_steps is None:
         qat_steps = round(DEFAULT_QAT_FRACTION * steps) if isinstance(steps, int) else 0
     n_slices = 1 if times is None else len(times)
-    field = FeatureField(mesh, dim=dim, seed=seed, n_slices=n_slices, times=times, device=device)
+    field = FeatureField(mesh, dim=settings.dim, seed=seed, n_slices=n_slices, times=times, device=settings.device)
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
     with torch.no_grad():
         model.decoder.linears()[-1].bias.copy_(torch.from_numpy(log_mean if model.transform == "log" else mean))
@@ -252,17 +262,11 @@ def fit_bands(
     source,
     mesh,
     stats,
+    settings: FitSettings | None = None,
     *,
-    steps: int | None = None,
-    batch_size: int = 1 << 14,
     epoch_pixels: int | None = None,
     mixed=None,
     held_out=None,
-    dim: int = 5,
-    seed: int = 0,
-    loss: str = "auto",
-    device: str = "cpu",
-    qat_steps: int | None = None,
     feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
@@ -271,7 +275,7 @@ def fit_bands(
     final_lr: float | None = 1e-3,
     data_range: float | None = None,
     tonemap: bool | None = None,
-    **model_kw,
+    **overrides,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster read in bands (``dfc.io.bands``), out of core and, inside a
     ``torch.distributed`` run, data-parallel (``dfc.train.bands.band_sampler``, ``dfc.train.distributed``).
@@ -280,8 +284,8 @@ def fit_bands(
     ----------
     source : band source covering ``mesh.domain``; stats : its ``dfc.train.bands.BandStats`` over all ranks (range
         and mean initialise the model as ``fit_image`` does)
-    batch_size : samples per step over all ranks (rank r draws ``batch_size // N``, plus one for r below the
-        remainder)
+    settings.batch_size : samples per step over all ranks (rank r draws ``batch_size // N``, plus one for r below
+        the remainder)
     epoch_pixels : pixels per epoch over all ranks (default ``dfc.train.bands.default_epoch_pixels``)
     mixed, held_out : pixels never sampled (``EdgeMask``, ``HeldOut``, or None)
     other arguments : as in ``fit_image``
@@ -294,10 +298,10 @@ def fit_bands(
     from .distributed import world
 
     rank, size = world()
-    steps = IMAGE_STEPS if steps is None else steps
+    settings, model_kw = fit_settings(settings, overrides, IMAGE_STEPS)
     model, run = _model_for(float(stats.lo.min()), float(stats.hi.max()), stats.mean, stats.log_mean, mesh,
-                            channels or source.channels, loss, steps, qat_steps, dim, seed, device,
-                            (data_range, tonemap), model_kw)
+                            channels or source.channels, settings, (data_range, tonemap), model_kw)
+    batch_size, device = settings.batch_size, settings.device
     local = batch_size // size + (rank < batch_size % size)
     if local < 1:
         raise InputError(f"batch size {batch_size} is smaller than the number of ranks ({size})")
@@ -306,7 +310,7 @@ def fit_bands(
     query = model.field.query if torch.device(device).type == "cuda" else None
     sampler = band_sampler(source, mesh.domain, local, epoch_pixels=epoch_pixels, mixed=mixed, held_out=held_out,
                            rank=rank, world=size, device=device, query=query)
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
         weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
 
@@ -321,14 +325,8 @@ averages the noise only once the rate is this low: 400 steps to 1e-3 denoise 7.6
 def fit_samples(
     samples,
     mesh,
+    settings: FitSettings | None = None,
     *,
-    steps: int | None = None,
-    batch_size: int = 1 << 14,
-    dim: int = 5,
-    seed: int = 0,
-    loss: str = "auto",
-    device: str = "cpu",
-    qat_steps: int | None = None,
     feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
@@ -338,7 +336,7 @@ def fit_samples(
     data_range: float | None = None,
     init: FieldModel | None = None,
     tonemap: bool | None = None,
-    **model_kw,
+    **overrides,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a sample set (noisy values at scattered, possibly repeated points).
 
@@ -346,12 +344,11 @@ def fit_samples(
     ----------
     samples : dfc.io.samples.SampleSet (validated here); its points must lie in ``mesh.domain``
     mesh : dfc.geometry.mesh.Mesh
-    steps : optimiser steps (default ``DEFAULT_STEPS``)
-    batch_size : samples per step (shuffled epochs, see ``point_sampler``)
-    dim, seed, qat_steps, feature_bits, weight_bits, callback, data_range, tonemap, **model_kw : as in ``fit_image``
+    settings, **overrides : as in ``fit_image``, but ``steps`` None is ``DEFAULT_STEPS`` and ``batch_size`` samples
+        are drawn per step in shuffled epochs (``point_sampler``)
+    feature_bits, weight_bits, callback, data_range, tonemap : as in ``fit_image``
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (lower than ``fit_image``'s, see
         ``SAMPLES_LR``)
-    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" when some value is > 1 (HDR), else "mse"
     channels : output channel names (default: the sample set's, else ``dfc.io.samples.default_channels``)
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at up to ``MAX_CARRY_POINTS`` of the sample positions)
@@ -372,15 +369,16 @@ def fit_samples(
     values = samples.values
     if channels is None:
         channels = samples.channels or default_channels(values.shape[1])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
-                            model_kw)
+    settings, model_kw = fit_settings(settings, overrides, DEFAULT_STEPS)
+    model, run = _new_model(values, mesh, channels, settings, (data_range, tonemap), model_kw)
     if init is not None:
         from ..field.transfer import carry_over
 
         carry_over(init, model, xy[::max(1, len(xy) // MAX_CARRY_POINTS)])
     cached = len(xy) <= MAX_CACHED_SAMPLES
-    sampler = point_sampler(xy, values, batch_size, device=device, query=model.field.query if cached else None)
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+    sampler = point_sampler(xy, values, settings.batch_size, device=settings.device,
+                            query=model.field.query if cached else None)
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
         weight_bits=weight_bits, **run)
     return model
 
@@ -388,14 +386,8 @@ def fit_samples(
 def fit_frames(
     sequence,
     mesh,
+    settings: FitSettings | None = None,
     *,
-    steps: int | None = None,
-    batch_size: int = 1 << 14,
-    dim: int = 5,
-    seed: int = 0,
-    loss: str = "auto",
-    device: str = "cpu",
-    qat_steps: int | None = None,
     feature_bits: int = DEFAULT_FEATURE_BITS,
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
@@ -404,12 +396,12 @@ def fit_frames(
     final_lr: float | None = 1e-3,
     data_range: float | None = None,
     tonemap: bool | None = None,
-    **model_kw,
+    **overrides,
 ) -> FieldModel:
     """Fit a time-sliced ``FieldModel`` on ``mesh`` to a frame sequence (``dfc.io.frames.FrameSequence``) covering
     ``mesh.domain``: one feature slice per frame, at the frame's time, sharing the mesh and the decoder.
 
-    Arguments as in ``fit_image`` (steps count batches over all frames together; pixels that a discontinuity
+    Arguments as in ``fit_image`` (``steps`` None is ``DEFAULT_STEPS``, counting batches over all frames together; pixels that a discontinuity
     crosses are left out as with ``mixed_pixels="drop"``). Returns the model in evaluation mode.
     """
     from ..io.frames import check_frames
@@ -420,12 +412,12 @@ def fit_frames(
     if channels is None:
         channels = sequence.channels or default_channels(frames.shape[3])
     values = frames.reshape(-1, frames.shape[3])
-    model, run = _new_model(values, mesh, channels, loss, steps, qat_steps, dim, seed, device, (data_range, tonemap),
-                            model_kw, times=sequence.times)
+    settings, model_kw = fit_settings(settings, overrides, DEFAULT_STEPS)
+    model, run = _new_model(values, mesh, channels, settings, (data_range, tonemap), model_kw, times=sequence.times)
     exclude = edge_pixels(mesh, *frames.shape[1:3])
-    sampler = frame_sampler(frames, sequence.times, mesh.domain, batch_size, device=device,
+    sampler = frame_sampler(frames, sequence.times, mesh.domain, settings.batch_size, device=settings.device,
                             exclude=exclude if exclude.mean() <= MAX_DROPPED_FRACTION else None)
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
+    fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
         weight_bits=weight_bits, **run)
     return model
 

@@ -117,11 +117,9 @@ def measure(scene, blob: bytes, pixels: np.ndarray) -> dict:
 
 
 def _setting(ctx, param, values):
-    from dataclasses import fields
+    from ...settings import EncodeSettings
 
-    from ...codec import EncodeSettings
-
-    known = {f.name: f for f in fields(EncodeSettings)}
+    known = EncodeSettings.names()
     out = {}
     for item in values:
         name, _, text = item.partition("=")
@@ -139,8 +137,6 @@ def _setting(ctx, param, values):
 def command(scene_name, overrides, json_path):
     """Encode the analytic SCENE (sample, shapes, strokes, hdr) and print bytes, 1× PSNR, zoom PSNR on edges and
     open curve ends, and smooth-region PSNR of the written file (see the module documentation)."""
-    from dataclasses import asdict
-
     from ...codec import EncodeSettings, encode_image
     from ...io.image import Image
     from ..scenes import get_scene
@@ -152,7 +148,7 @@ def command(scene_name, overrides, json_path):
     clock = time.perf_counter()
     blob, report = encode_image(Image(pixels, scene.channels, hdr=float(pixels.max()) > 1.0), scene.curves, settings)
     seconds = time.perf_counter() - clock
-    out = {"scene": scene_name, "settings": asdict(settings), "encode_s": seconds, "chunks": report.chunk_bytes,
+    out = {"scene": scene_name, "settings": settings.to_dict(), "encode_s": seconds, "chunks": report.chunk_bytes,
            "triangles": report.n_triangles, **measure(scene, blob, pixels)}
     click.echo(f"{scene_name}: {out['bytes']} bytes ({', '.join(f'{k} {v}' for k, v in report.chunk_bytes.items())}); "
                f"{report.n_triangles} triangles; encode {seconds:.0f} s")
