@@ -11,16 +11,15 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
-from . import __version__
 from .errors import InputError, TargetBytesError
 from .field.quantize import DEFAULT_FEATURE_BITS
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
-from .io.dfield import load, loads, to_contents
+from .io.dfield import encode_model, encoder_info, load, loads
 from .metrics import QualityScale, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set,
@@ -128,35 +127,6 @@ def _image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> 
     width = decoder_hidden(n_values, budget, inputs=settings.dim, outputs=n_channels, layers=settings.layers,
                            weight_bits=settings.weight_bits)
     return replace(settings, hidden=min(settings.hidden, width))
-
-
-def storage(settings) -> dict:
-    """``dfc.io.container.encode_dfield``'s keyword arguments for ``settings`` (an ``EncodeSettings``)."""
-    return {"feature_bits": settings.feature_bits, "feature_coding": settings.feature_coding,
-            "weight_bits": settings.weight_bits}
-
-
-def encode_model(model, settings, info: dict | None = None, pixel_size=None) -> tuple[bytes, dict[str, int]]:
-    """(``.dfield`` bytes, bytes per chunk) of ``model`` written with ``settings``' storage, the header's ``encoder``
-    record ``info`` and ``pixel_size``. The mesh was validated once, when rate control built it
-    (``dfc.rate.build_mesh``), and its bytes decode to it exactly: it is not validated again."""
-    from .io.container import encode_dfield
-
-    return encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True, **storage(settings))
-
-
-def encoder_info(settings, source: str, extra: dict) -> dict:
-    """The header's ``encoder`` record: software, curves source, the settings (a dataclass whose fields all have
-    defaults) that differ from their defaults — the others are the named software version's — and ``extra``.
-
-    Every setting written out took 456 of the 2 KB of a small file (the zstd-compressed header JSON); the settings
-    that differ keep the record complete at about a third of that."""
-    def named(s) -> dict:
-        return s.to_dict() if isinstance(s, EncodeSettings) else {f.name: getattr(s, f.name) for f in fields(s)}
-
-    defaults = named(type(settings)())
-    changed = {name: value for name, value in named(settings).items() if value != defaults[name]}
-    return {"software": f"dfc {__version__}", "source": source, **changed, **extra}
 
 
 # ----------------------------------------------------------------------------------------------- encoders

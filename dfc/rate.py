@@ -157,7 +157,7 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int,
     with torch.no_grad():
         model.field.bank.uniform_(-1.0, 1.0, generator=torch.Generator().manual_seed(settings.seed))
     if size_of is None:
-        from .codec import encode_model
+        from .io.dfield import encode_model
 
         return len(encode_model(model, settings)[0]), mesh
     return size_of(model), mesh

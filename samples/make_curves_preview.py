@@ -8,7 +8,7 @@ y 80..420 of the image, each curve in its own colour over the image (tone-mapped
 import sys
 from pathlib import Path
 
-from dfc.geometry.preview import draw_curves
+from dfc.io.preview import draw_curves
 from dfc.geometry.sources.raster import image_curves
 from dfc.io.image import read_image
 

@@ -56,7 +56,7 @@ def _encode_forever(threads: int) -> None:
     import torch
 
     from ..codec import EncodeSettings, encode_image
-    from ..geometry.curves import read_curves
+    from ..geometry.sources import read_curves
     from ..io.image import read_image
 
     torch.set_num_threads(threads)
@@ -70,7 +70,7 @@ def _encode_forever(threads: int) -> None:
 
 
 if __name__ == "__main__":
-    from ..cli import quiet_openmp
+    from ..command import quiet_openmp
 
     quiet_openmp()
     _encode_forever(int(sys.argv[1]))

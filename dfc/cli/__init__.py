@@ -4,13 +4,15 @@ assembles the group and turns library errors into one-line messages (exit 1), th
 
 from __future__ import annotations
 
-import contextlib
 import importlib
 import importlib.util
-import os
-import signal
 
 import click
+
+from ..command import OPENMP_ENVIRONMENT as OPENMP_ENVIRONMENT
+from ..command import _terminate as _terminate
+from ..command import quiet_openmp as quiet_openmp
+from ..command import sigterm_unwinds as sigterm_unwinds
 
 # command name -> module of dfc.cli exposing a click command called ``command``
 COMMANDS = {
@@ -51,46 +53,13 @@ def cli():
     """
 
 
-def _terminate(signum, frame):
-    """SIGTERM unwinds like Ctrl-C, so atomic writers remove their temporary files. Once: a second SIGTERM while
-    unwinding (a launcher stopping its ranks may send more than one) would interrupt the clean-up, or an exit
-    handler, with a traceback."""
-    signal.signal(signum, signal.SIG_IGN)
-    raise SystemExit(128 + signum)
-
-
-@contextlib.contextmanager
-def sigterm_unwinds():
-    """While the block runs, SIGTERM unwinds like Ctrl-C (``_terminate``). After it, SIGTERM takes its default
-    action again: the work is done or unwound, and a SIGTERM that raised inside an exit handler (a launcher stopping
-    a rank that is already exiting) would print a traceback instead of ending the process."""
-    signal.signal(signal.SIGTERM, _terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, signal.SIG_DFL)
-
-
-OPENMP_ENVIRONMENT = {"OMP_WAIT_POLICY": "PASSIVE"}
-"""Set (unless the user set them) before torch is loaded. OpenMP's idle worker threads otherwise spin, waiting
-for the next parallel region: two such programs on the same cores (a batch encoded in parallel, tests beside a
-build, a shared CI runner) take turns spinning instead of working: a 60-step encode of the sample with two threads
-took 43.5 s spinning and 8.3 s sleeping on the busy development machine (README, "Threads")."""
-
-
-def quiet_openmp() -> None:
-    """Apply ``OPENMP_ENVIRONMENT``; only effective before the OpenMP runtime (torch) is loaded."""
-    for name, value in OPENMP_ENVIRONMENT.items():
-        os.environ.setdefault(name, value)
-
-
 def main(argv: list[str] | None = None):
     """Console entry point: library errors become one line on stderr and exit status 1.
 
     ``argv`` defaults to ``sys.argv[1:]``. SIGTERM exits through the same clean-up as Ctrl-C, so an
     interrupted encode or decode leaves neither the output nor a temporary file. OpenMP is told to let idle
     threads sleep before anything loads torch (``quiet_openmp``); each computing command's ``--threads`` sets
-    torch's thread count (``dfc.cli.options.threads_option``).
+    torch's thread count (``dfc.command.threads_option``).
     """
     quiet_openmp()
     from ..errors import DfcError

@@ -35,25 +35,21 @@ class Source:
 
 
 def _is_scene(path: Path) -> bool:
-    return path.suffix.lower() == ".xml"
+    """A Mitsuba 3 scene, or other XML (``dfc.io.sniff``; the scene reader says what it is instead)."""
+    from ..io.sniff import XML_KINDS, file_kind
+
+    return file_kind(path) in XML_KINDS
 
 
 def _is_image(path: Path) -> bool:
-    """EXR, PNG or JPEG, by extension or by the file's first bytes."""
-    from ..io.image import EXR_EXTENSIONS, PIL_EXTENSIONS
+    """EXR, PNG or JPEG (``dfc.io.sniff``: by content, else by extension)."""
+    from ..io.sniff import IMAGE_KINDS, file_kind
 
-    if path.suffix.lower() in EXR_EXTENSIONS + PIL_EXTENSIONS:
-        return True
-    try:
-        with open(path, "rb") as f:
-            head = f.read(8)
-    except OSError:
-        return False
-    return head.startswith((b"\x76\x2f\x31\x01", b"\x89PNG\r\n\x1a\n", b"\xff\xd8\xff"))
+    return file_kind(path) in IMAGE_KINDS
 
 
 def _from_scene(path: Path, o: dict, stats: dict, progress):
-    from ..geometry.preview import draw_curves
+    from ..io.preview import draw_curves
     from ..geometry.sources.scene import read_scene
     from ..io.mitsuba import flat_shaded
 
@@ -72,7 +68,7 @@ def _from_scene(path: Path, o: dict, stats: dict, progress):
 
 def _from_image(path: Path, o: dict, stats: dict, progress):
     from ..errors import ExtraError, InputError
-    from ..geometry.preview import draw_curves
+    from ..io.preview import draw_curves
     from ..io.image import read_image
 
     try:

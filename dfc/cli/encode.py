@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -189,6 +190,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
+        from ..workers import encode_file_in_bands
+
         signal = curves_info = None
         if not out_of_core:
             signal = _read_input(kind, paths, times, channels.split(",") if channels else None,
@@ -202,9 +205,11 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             curves = read_curves_checked(curves_path, quiet)
         input_bytes = sum(os.path.getsize(p) for p in paths)
         if out_of_core:
-            job = BandJob(paths[0], channels.split(",") if channels else None, curves, settings,
-                          fit_curves_to_image, output, quiet)
-            blob, report = run_band_job(job)  # read band by band while the input (or its spooled copy) is there
+            # read band by band while the input (or its spooled copy) is there
+            blob, report = encode_file_in_bands(paths[0], curves, settings, None if output == "-" else output,
+                                                channels=channels.split(",") if channels else None,
+                                                fit_curves=fit_curves_to_image,
+                                                progress=functools.partial(_band_progress, quiet=quiet))
             if report is None:  # a rank other than 0 of a torchrun run: rank 0 writes and reports
                 return
         else:
@@ -366,90 +371,16 @@ def _out_of_core(kind: str, paths, epoch_pixels, workers: int) -> bool:
     return asked
 
 
-@dataclass
-class BandJob:
-    """An out-of-core encode as each rank runs it: the input, its curves, the settings, where rank 0 writes."""
+def _band_progress(total: int, shown: bool, quiet: bool):
+    """``dfc.workers`` progress of an out-of-core fit: the command's bar, ticked by the fit's callback."""
+    import contextlib
 
-    input_path: str
-    channels: list[str] | None
-    curves: object
-    settings: object
-    fit_curves: bool
-    output: str
-    quiet: bool
+    @contextlib.contextmanager
+    def bar():
+        with progress_bar(total, "fit", quiet or not shown) as b:
+            yield _fit_callback(b)
 
-
-def run_band_job(job: BandJob):
-    """Run an out-of-core encode here (one process), as a rank of this torchrun run, or on ``job.settings.workers``
-    local ranks (``dfc.train.distributed.launch``, rank 0 writing the file). Returns (blob to write or None,
-    report); (None, None) on ranks other than 0."""
-    from ..train import distributed
-
-    if job.settings.workers > 1:
-        return None, distributed.launch(job.settings.workers, rank_main, job)[0]
-    if distributed.launched():
-        return _as_rank(job)
-    return _encode_bands(job)
-
-
-def rank_main(job: BandJob):
-    """Entry point of each local rank of ``dfc encode --workers N``: rank 0 writes the file and returns the report.
-    A rank ends when the launching process does, however that ends (Linux: the parent-death signal)."""
-    from . import sigterm_unwinds
-
-    _end_with_parent()
-    with sigterm_unwinds():  # unwinds, so the atomic writers remove their temporary files
-        blob, report = _as_rank(job)
-        if blob is not None:
-            write_bytes_atomic(job.output, blob)
-    return report
-
-
-def _end_with_parent() -> None:
-    """Linux sends this process SIGTERM when the parent dies (``prctl(PR_SET_PDEATHSIG)``)."""
-    import ctypes
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)
-
-
-def _as_rank(job: BandJob):
-    """``_encode_bands`` inside the process group of this run (joined here, left at the end). The progress bar
-    locks with a thread lock: tqdm's default holds a named semaphore, which a killed rank would leave behind (and
-    Python's resource tracker would warn about after the run's one error line)."""
-    import threading
-
-    from tqdm import tqdm
-
-    from ..errors import DfcError
-    from ..train import distributed
-
-    tqdm.set_lock(threading.RLock())
-    job = replace(job, settings=replace(job.settings, device=distributed.init(job.settings.device)))
-    try:
-        return _encode_bands(job)
-    except RuntimeError as e:
-        lost = None if isinstance(e, distributed.RankError) else distributed.lost_rank(e)
-        if lost is None:
-            raise
-        raise lost from None
-    except DfcError as e:  # the cause, recorded before leaving the group makes the others fail
-        distributed.record_cause(e)
-        raise
-    finally:
-        distributed.finish()
-
-
-def _encode_bands(job: BandJob):
-    from ..codec import encode_bands
-    from ..io.bands import open_bands
-    from ..train.distributed import world
-
-    source = open_bands(job.input_path, job.channels)
-    with progress_bar(job.settings.steps, "fit", job.quiet or world()[0] != 0) as bar:
-        return encode_bands(source, job.curves, job.settings, fit_curves=job.fit_curves, callback=_fit_callback(bar))
+    return bar()
 
 
 def _read_reference(path: str, domain):

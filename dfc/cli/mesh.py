@@ -26,7 +26,7 @@ def command(curves_path, max_area, edge_length, grading, max_triangles, output, 
 
     Without size options the mesh aims at about 2,000 triangles over the domain plus those the curves force.
     """
-    from ..geometry.preview import FORMATS, draw_mesh
+    from ..io.preview import FORMATS, draw_mesh
     from ..geometry.triangulate import triangulate
 
     if Path(output).suffix.lower() not in FORMATS:

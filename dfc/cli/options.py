@@ -4,7 +4,6 @@ progress bars, warnings and notes, ``-`` for standard input and output."""
 from __future__ import annotations
 
 import contextlib
-import json
 import math
 import os
 import shutil
@@ -14,6 +13,16 @@ from pathlib import Path
 
 import click
 
+from ..command import DEFAULT_THREADS as DEFAULT_THREADS
+from ..command import THREADS_ENV as THREADS_ENV
+from ..command import json_option as json_option
+from ..command import note as note
+from ..command import quiet_option as quiet_option
+from ..command import shown as shown
+from ..command import stdout_taken as stdout_taken
+from ..command import threads_option as threads_option
+from ..command import warn as warn
+from ..command import write_json as write_json
 from ..io.image import EXR_EXTENSIONS, MAX_IMAGE_SIDE
 
 OUTPUT_EXTENSIONS = EXR_EXTENSIONS + (".png",)
@@ -109,72 +118,6 @@ def progress_bar(total: int, label: str, quiet: bool, *, unit: str = "step"):
                 leave=False, dynamic_ncols=True, mininterval=0.5)
 
 
-# -- threads ------------------------------------------------------------------------------------------------------
-THREADS_ENV = "DFC_THREADS"
-DEFAULT_THREADS = 1
-"""torch CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on the
-2-core development machine (README, "Threads"): with idle threads sleeping, one thread is within a few per cent of
-two on the busy shared machine and 1.6× faster beside a program whose threads spin; two are up to 1.4× faster only
-on an idle machine."""
-
-
-def _set_threads(ctx, param, value):
-    import torch
-
-    torch.set_num_threads(value)
-    return value
-
-
-threads_option = click.option(
-    "--threads", type=click.IntRange(1, 4096), default=DEFAULT_THREADS, show_default=True, envvar=THREADS_ENV,
-    show_envvar=True, expose_value=False, callback=_set_threads,
-    help="CPU threads for torch. More help only on an otherwise idle machine with cores to spare.")
-"""``--threads N`` (env ``DFC_THREADS``) of every command that computes: sets torch's CPU threads before it runs.
-(The entry point has already told OpenMP to sleep rather than spin while idle, ``dfc.cli.main``.)"""
-
-
-# -- quiet, json, warnings ---------------------------------------------------------------------------------------
-quiet_option = click.option("-q", "--quiet", is_flag=True,
-                            help="No progress bar, warnings or notes (errors and the summary remain).")
-json_option = click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
-                           help="Also write the summary as JSON to this file (- for standard output; the text "
-                                "summary then goes to standard error).")
-
-
-def write_json(path: str, data: dict) -> None:
-    """``data`` as indented JSON to ``path`` (atomically), or to standard output when ``path`` is ``-``."""
-    from ..io.atomic import write_bytes_atomic
-
-    text = json.dumps(data, indent=2) + "\n"
-    if path == "-":
-        click.echo(text, nl=False)
-    else:
-        write_bytes_atomic(path, text.encode())
-
-
-def shown(path: str) -> str:
-    """A path as a summary names it: ``-`` is standard output."""
-    return "standard output" if path == "-" else path
-
-
-def stdout_taken(*paths) -> bool:
-    """True when one of ``paths`` (outputs, the ``--json`` path) is ``-``: standard output carries data, so the
-    text summary goes to standard error (``click.echo(..., err=stdout_taken(...))``)."""
-    return any(p == "-" for p in paths)
-
-
-def warn(message: str, quiet: bool) -> None:
-    """One ``dfc: warning:`` line on standard error (the run goes on), unless ``quiet``."""
-    if not quiet:
-        click.echo(f"dfc: warning: {message}", err=True)
-
-
-def note(message: str, quiet: bool) -> None:
-    """One ``dfc: note:`` line on standard error, unless ``quiet``."""
-    if not quiet:
-        click.echo(f"dfc: note: {message}", err=True)
-
-
 # -- standard input and output -------------------------------------------------------------------------------------
 def binary_stream(stream):
     """The byte stream under a text stream (``sys.stdin`` / ``sys.stdout``), or the stream itself when it has none."""
@@ -218,7 +161,8 @@ def read_curves_checked(path: str, quiet: bool):
     from dataclasses import replace
 
     from ..errors import CurveError
-    from ..geometry.curves import curves_outside, read_curves
+    from ..geometry.curves import curves_outside
+    from ..geometry.sources import read_curves
 
     with stdin_file(path) as real:
         try:

@@ -14,7 +14,6 @@ Conventions (y down, which side is "left") are in ``spec/conventions.md``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -159,13 +158,3 @@ def fit_curves_to_domain(curves: Curves, domain: tuple[float, float, float, floa
     scale = np.array([(dx1 - dx0) / (sx1 - sx0), (dy1 - dy0) / (sy1 - sy0)])
     cp = (curves.control_points - [sx0, sy0]) * scale + [dx0, dy0]
     return Curves(domain, cp, curves.degree, curves.curve, curves.t_range, curves.names, curves.sides, curves.source)
-
-
-def read_curves(path: str | Path) -> Curves:
-    """Read a curves file, choosing the reader by extension: ``.svg``, ``.json``, ``.xml``.
-
-    Raises ``CurveError`` naming the file and the problem when it cannot be read.
-    """
-    from .sources import read_any
-
-    return read_any(Path(path))

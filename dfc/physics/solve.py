@@ -308,7 +308,7 @@ class SolveReport:
 
 def prepare(curves, settings: SolveSettings) -> SolveProblem:
     """The scene (``InputError`` without side values), dfc's decoder-view mesh and their sample sets."""
-    from ..codec import EncodeSettings
+    from ..settings import EncodeSettings
     from ..rate import build_mesh
 
     scene = Scene(curves)
@@ -325,9 +325,8 @@ def solve_scene(curves, settings: SolveSettings | None = None, *, problem: Solve
     """
     import time
 
-    from ..codec import encoder_info
     from ..io.container import encode_dfield
-    from ..io.dfield import to_contents
+    from ..io.dfield import encoder_info, to_contents
     from ..io.samples import default_channels
 
     settings = settings or SolveSettings()

@@ -401,8 +401,9 @@ def fit_frames(
     """Fit a time-sliced ``FieldModel`` on ``mesh`` to a frame sequence (``dfc.io.frames.FrameSequence``) covering
     ``mesh.domain``: one feature slice per frame, at the frame's time, sharing the mesh and the decoder.
 
-    Arguments as in ``fit_image`` (``steps`` None is ``DEFAULT_STEPS``, counting batches over all frames together; pixels that a discontinuity
-    crosses are left out as with ``mixed_pixels="drop"``). Returns the model in evaluation mode.
+    Arguments as in ``fit_image`` (``steps`` None is ``DEFAULT_STEPS``, counting batches over all frames together;
+    pixels that a discontinuity crosses are left out as with ``mixed_pixels="drop"``). Returns the model in
+    evaluation mode.
     """
     from ..io.frames import check_frames
     from ..io.samples import default_channels

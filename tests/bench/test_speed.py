@@ -27,7 +27,7 @@ def wall(tmp_path):
 
 
 def test_interior_points_are_centroids_no_training_sample_hits(wall):
-    from dfc.geometry.curves import read_curves
+    from dfc.geometry.sources import read_curves
     from dfc.io.fem import read_fem
 
     sol = read_fem(wall[0])

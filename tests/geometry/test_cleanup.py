@@ -11,7 +11,8 @@ from scipy.spatial import cKDTree
 from dfc.errors import CurveError
 from dfc.geometry import bezier as bz
 from dfc.geometry.cleanup import clean
-from dfc.geometry.curves import Curves, elevate, read_curves
+from dfc.geometry.curves import Curves, elevate
+from dfc.geometry.sources import read_curves
 from dfc.geometry.tolerances import tol
 
 DOMAIN = (0.0, 0.0, 100.0, 50.0)

@@ -11,7 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from dfc.errors import CurveError
-from dfc.geometry.curves import Curves, SideValues, elevate, read_curves
+from dfc.geometry.curves import Curves, SideValues, elevate
+from dfc.geometry.sources import read_curves
 from dfc.geometry.sources import read_any, write_json
 from dfc.geometry.sources.dcxml import read_dcxml
 from dfc.geometry.sources.svg import arc_pieces

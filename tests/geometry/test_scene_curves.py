@@ -12,7 +12,7 @@ mi = pytest.importorskip("mitsuba")
 
 from dfc.errors import InputError  # noqa: E402
 from dfc.geometry import bezier  # noqa: E402
-from dfc.geometry.curves import read_curves  # noqa: E402
+from dfc.geometry.sources import read_curves  # noqa: E402
 from dfc.geometry.sources.scene import read_scene  # noqa: E402
 from dfc.io.mitsuba import Camera, load_scene, perspective_sensor, render_aovs, write_ply  # noqa: E402
 

@@ -12,7 +12,8 @@ from scipy.spatial import cKDTree
 
 from dfc.errors import MeshError, TriangleBudgetError
 from dfc.geometry import bezier
-from dfc.geometry.curves import Curves, elevate, read_curves
+from dfc.geometry.curves import Curves, elevate
+from dfc.geometry.sources import read_curves
 from dfc.geometry.triangulate import _box_pairs, triangulate
 
 DOMAIN = (0.0, 0.0, 4.0, 3.0)

@@ -10,7 +10,7 @@ import torch
 from dfc.codec import load
 from dfc.errors import InputError
 from dfc.field.feature_field import FeatureField
-from dfc.geometry.curves import read_curves
+from dfc.geometry.sources import read_curves
 from dfc.geometry.triangulate import triangulate
 from dfc.io.frames import FrameSequence, npz_kind, read_frames, write_frames
 from dfc.io.image import read_image, write_exr

@@ -65,3 +65,45 @@ def test_encode_input_kind_by_content(tmp_path):
     assert input_kind((str(tmp_path / "solution.dat"),), None) == "fem"
     assert read_fem(tmp_path / "solution.dat").channels == ["u"]  # meshio is told the format found by content
     assert input_kind((str(tmp_path / "sample"), str(SAMPLES / "sample.exr")), [0.0, 1.0]) == "frames"
+
+
+@pytest.mark.parametrize("head,kind", [
+    (b'{"format": "dfc-curves/1"}', "json"),
+    (b'\xef\xbb\xbf  {"a": 1}', "json"),
+    (b'<?xml version="1.0"?>\n<!-- made by hand -->\n<!DOCTYPE svg>\n<svg xmlns="http://www.w3.org/2000/svg">', "svg"),
+    (b"<svg:svg xmlns:svg='http://www.w3.org/2000/svg'>", "svg"),
+    (b'<curve_set image_width="4" image_height="4">', "dcxml"),
+    (b'<scene image_width="512" image_height="512">', "dcxml"),
+    (b'<?xml version="1.0"?>\n<scene version="3.0.0">\n<shape type="sphere"/>', "mitsuba"),
+    (b"<html><body/></html>", None),
+    (b"[1, 2, 3]", None),
+])
+def test_curves_and_scenes_by_content(head, kind):
+    assert sniff_bytes(head) == kind
+
+
+def test_one_sniffer_for_curves_scenes_and_images(tmp_path):
+    """Content decides for curves files and for ``dfc curves``' inputs too; the extension only when the content
+    says nothing."""
+    from dfc.cli.curves import _is_image, _is_scene
+    from dfc.errors import CurveError
+    from dfc.geometry.sources import read_curves
+
+    json_named_svg = tmp_path / "curves.svg"
+    shutil.copy(SAMPLES / "sample.json", json_named_svg)
+    assert file_kind(json_named_svg) == "json"
+    assert read_curves(json_named_svg).n_curves == read_curves(SAMPLES / "sample.json").n_curves
+    scene = tmp_path / "scene.txt"
+    scene.write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    with pytest.raises(CurveError, match="Mitsuba 3 scene"):
+        read_curves(scene)
+    assert _is_scene(scene) and not _is_image(scene)
+    png_named_dat = tmp_path / "photo.dat"
+    write_png(png_named_dat, np.full((3, 2, 3), 0.5, np.float32))
+    assert _is_image(png_named_dat) and not _is_scene(png_named_dat)
+    image_named_xml = tmp_path / "photo.xml"
+    shutil.copy(png_named_dat, image_named_xml)
+    assert _is_image(image_named_xml) and not _is_scene(image_named_xml)
+    damaged = tmp_path / "damaged.xml"
+    damaged.write_bytes(b"\x00" * 16)  # nothing to recognise: the extension decides
+    assert file_kind(damaged) == "xml" and _is_scene(damaged)

@@ -12,7 +12,7 @@ import torch
 
 from dfc.codec import EncodeSettings, encode_fem, load, loads
 from dfc.errors import InputError
-from dfc.geometry.curves import read_curves
+from dfc.geometry.sources import read_curves
 from dfc.io.fem import from_meshio, read_fem
 from dfc.physics.fem import evaluate_fem, fem_curves, interpolate, sample_fem
 

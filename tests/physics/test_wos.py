@@ -9,7 +9,8 @@ from hypothesis import strategies as st
 from dfc.cli import cli, main
 from dfc.errors import InputError
 from dfc.geometry import bezier
-from dfc.geometry.curves import Curves, read_curves
+from dfc.geometry.curves import Curves
+from dfc.geometry.sources import read_curves
 from dfc.io.samples import read_samples
 from dfc.physics.reference import solve_reference
 from dfc.physics.wos import GRID_CELLS, Scene, grid_size, reflect, sample_scene, walk_on_spheres
@@ -207,6 +208,7 @@ def test_distance_is_a_tight_lower_bound(small):
 
 def test_split_pieces_keeps_geometry_and_parameters():
     from dfc.geometry.curves import split_pieces
+    from dfc.geometry.sources import read_curves
 
     curves = read_curves(SCENE)
     cut = split_pieces(curves, 3.0)

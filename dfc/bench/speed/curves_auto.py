@@ -92,7 +92,7 @@ def command(scene_names, size, spp, images, preview_dir, json_path):
     """Distance, recall and false curves of the raster extractor against the analytic scenes' exact curves."""
     from pathlib import Path
 
-    from ...geometry.preview import draw_curves
+    from ...io.preview import draw_curves
     from ...geometry.sources.raster import RasterSettings, image_curves
     from ..scenes import SCENES, get_scene
 

@@ -21,7 +21,7 @@ import click
 import numpy as np
 import torch
 
-from ...cli.options import json_option, quiet_option, stdout_taken, write_json
+from ...command import json_option, quiet_option, stdout_taken, write_json
 from ..neighbour import SAMPLES
 from ..timing import best_seconds, run_measured
 from .field import NEIGHBOUR_OPTION, THREADS_OPTION, conditions

@@ -23,7 +23,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ...cli.options import quiet_option, stdout_taken, write_json
+from ...command import quiet_option, stdout_taken, threads_option, write_json
 from ...io.atomic import write_bytes_atomic
 
 SIDE_POINTS = 200
@@ -72,7 +72,7 @@ def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tu
               help="Distance of the check points from the barrier, as a fraction of the domain's longer side.")
 @click.option("--interior-points", "n_interior", type=click.IntRange(min=1), default=INTERIOR_POINTS, show_default=True,
               help="Element centroids in the held-out PSNR against the finite element interpolant.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
+@threads_option
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also keep the .dfield here.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
@@ -80,12 +80,12 @@ def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tu
                    "standard error).")
 @quiet_option
 def command(solution_path, curves_path, fields, fem_sampling, max_triangles, steps, hash_steps, batch_size, offset,
-            n_interior, threads, seed, output, json_path, quiet):
+            n_interior, seed, output, json_path, quiet):
     """Bytes, PSNR and leakage across the barriers of dfc and an equal-size hash grid on a FEM solution."""
     import torch
 
     from ...codec import EncodeSettings, encode_fem, loads
-    from ...geometry.curves import read_curves
+    from ...geometry.sources import read_curves
     from ...io.fem import read_fem
     from ...metrics import psnr
     from ...physics.fem import barrier_segments, evaluate_fem, fem_curves, interpolate, node_points, sample_fem
@@ -94,8 +94,6 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     from ..baselines.hashgrid import HashGrid
 
     text_err = stdout_taken(json_path)
-    if threads is not None:
-        torch.set_num_threads(threads)
     solution = read_fem(solution_path, fields.split(",") if fields else None)
     curves = fem_curves(solution, read_curves(curves_path))
     in_bytes = Path(solution_path).stat().st_size

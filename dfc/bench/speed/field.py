@@ -14,7 +14,7 @@ import click
 import torch
 from torch import nn
 
-from ...cli.options import json_option, quiet_option, stdout_taken, write_json
+from ...command import json_option, quiet_option, stdout_taken, write_json
 from ..timing import best_seconds
 from .mesh import random_cubics
 

@@ -7,7 +7,7 @@ import time
 import click
 import numpy as np
 
-from ...cli.options import quiet_option, stdout_taken, write_json
+from ...command import quiet_option, stdout_taken, write_json
 from ...geometry.curves import Curves
 
 

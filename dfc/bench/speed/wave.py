@@ -12,7 +12,7 @@ from pathlib import Path
 
 import click
 
-from ...cli.options import quiet_option, stdout_taken, write_json
+from ...command import quiet_option, stdout_taken, threads_option, write_json
 from ...io.atomic import write_bytes_atomic
 
 
@@ -24,27 +24,23 @@ from ...io.atomic import write_bytes_atomic
 @click.option("--steps", type=click.IntRange(min=1), default=2000, show_default=True, help="Fit steps (all frames).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True)
 @click.option("--dim", type=click.IntRange(1, 64), default=5, show_default=True, help="Feature channels per vertex.")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
+@threads_option
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("-o", "--output", type=click.Path(dir_okay=False), help="Also keep the .dfield here.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
               help="Also write the figures to this JSON file (- for standard output; the text then goes to "
                    "standard error).")
 @quiet_option
-def command(sequence_path, curves_path, max_triangles, steps, batch_size, dim, threads, seed, output, json_path,
+def command(sequence_path, curves_path, max_triangles, steps, batch_size, dim, seed, output, json_path,
             quiet):
     """Bytes and PSNR of a frame sequence encoded as one time-sliced dfc file."""
-    import torch
-
     from ...codec import EncodeSettings, encode_frames, loads
-    from ...geometry.curves import read_curves
+    from ...geometry.sources import read_curves
     from ...io.frames import read_frames
     from ...metrics import psnr
     from ...render import render
 
     text_err = stdout_taken(json_path)
-    if threads is not None:
-        torch.set_num_threads(threads)
     seq = read_frames(sequence_path)
     t, h, w, c = seq.frames.shape
     in_bytes = Path(sequence_path).stat().st_size

@@ -42,7 +42,7 @@ import time
 import click
 import numpy as np
 
-from ...cli.options import quiet_option, stdout_taken, write_json
+from ...command import quiet_option, stdout_taken, threads_option, write_json
 
 
 def _spp_list(ctx, param, value):
@@ -87,7 +87,7 @@ def _odd(ctx, param, value):
 @click.option("--batch-size", type=click.IntRange(min=1), default=1 << 14, show_default=True, help="Fit batch size.")
 @click.option("--reference-scale", type=click.IntRange(min=1), default=3, show_default=True, callback=_odd,
               help="The reference grid is this many times finer than the pixel grid (odd).")
-@click.option("--threads", type=click.IntRange(min=1), default=None, help="torch CPU threads (default: torch's).")
+@threads_option
 @click.option("--device", default="cpu", show_default=True, help="torch device of the fits.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the walks and the fits.")
 @click.option("--encode", "measure_encode", is_flag=True,
@@ -97,12 +97,11 @@ def _odd(ctx, param, value):
                    "standard error).")
 @quiet_option
 def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length, qat, lr, final_lr, restarts,
-            batch_size, reference_scale, threads, device, seed, measure_encode, json_path, quiet):
+            batch_size, reference_scale, device, seed, measure_encode, json_path, quiet):
     """Variance reduction of a dfc fit over the raw mean of walk-on-spheres samples, per sample count."""
-    import torch
-
     from ...codec import sample_piece_length
-    from ...geometry.curves import read_curves, split_pieces
+    from ...geometry.curves import split_pieces
+    from ...geometry.sources import read_curves
     from ...geometry.pixels import edge_pixels
     from ...geometry.triangulate import triangulate
     from ...io.samples import SampleSet
@@ -113,8 +112,6 @@ def command(scene_path, resolution, spp_list, steps, max_triangles, piece_length
     from ...train.fit import fit_samples
 
     text_err = stdout_taken(json_path)
-    if threads is not None:
-        torch.set_num_threads(threads)
     curves = read_curves(scene_path)
     scene = Scene(curves)
     width, height = grid_size(scene.domain, resolution)

@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
-from ..io.atomic import atomic_path, write_bytes_atomic
-from . import bezier
-from .curves import Curves
-from .mesh import Mesh
+from ..geometry import bezier
+from ..geometry.curves import Curves
+from ..geometry.mesh import Mesh
+from .atomic import atomic_path, write_bytes_atomic
 
 __all__ = ["draw_mesh", "draw_curves", "FORMATS"]
 
@@ -70,7 +70,7 @@ def draw_curves(curves: Curves, path: str | Path, *, background: np.ndarray | No
         enlarged so its pixels stay visible; default a white page
     Each input curve gets a colour of its own; piece ends are dots.
     """
-    from ..io.image import linear_to_srgb, tonemap
+    from .image import linear_to_srgb, tonemap
 
     if Path(path).suffix.lower() != ".png":
         raise ValueError(f"preview: curves are drawn to .png, got {Path(path).suffix!r}")
