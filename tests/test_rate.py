@@ -72,6 +72,7 @@ def test_sample_sets_cut_curved_pieces_shorter_the_more_samples_they_have():
     assert lengths[0] == pytest.approx(sample_piece_length((0.0, 0.0, 1.0, 2.0), 1))  # the longer side counts
 
 
+@pytest.mark.slow
 def test_byte_targets_size_the_file_and_report_real_mesh_errors(scene, monkeypatch):
     from dfc import rate
 
@@ -106,6 +107,7 @@ def test_the_decoder_narrows_to_its_share_of_a_byte_target():
     assert decoder_hidden(64 * 64 * 3, 10**6) == decoder_hidden(64 * 64 * 3)  # never wider than the input allows
 
 
+@pytest.mark.slow
 def test_fill_points_spend_what_the_target_leaves(scene):
     """The refinement that fills a byte target: more vertices for a larger target, none when the file is already at
     it, and the file carried onto the refined mesh within ``FILL`` of the target."""
@@ -142,6 +144,7 @@ def test_fill_points_spend_what_the_target_leaves(scene):
     assert size_of(carried) <= FILL * 2.0 * now
 
 
+@pytest.mark.slow
 def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewer(scene, tmp_path):
     import re
 

@@ -9,7 +9,7 @@ import dfc
 
 from dfc.errors import SettingsError
 from dfc.settings import EncodeSettings, FitSettings, MeshSettings, RunSettings, StorageSettings
-from tests.cli.test_cli import assert_one_line_error, run
+from .cli.test_cli import assert_one_line_error, run
 
 from .conftest import SAMPLES
 

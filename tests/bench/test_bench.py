@@ -125,6 +125,7 @@ def test_neural_baselines_train_at_least_as_long_as_dfc(tmp_path):
     assert train["steps"] > 4
 
 
+@pytest.mark.slow
 def test_rd_sweep_writes_curves_plots_and_every_budget(tmp_path):
     out = tmp_path / "rd"
     budgets = [1500, 3000]
@@ -258,6 +259,7 @@ def test_hdr_input_is_measured_tone_mapped_and_the_baselines_fit_dfcs_loss():
     assert "tone-mapped x/(1+x), data range 1" in markdown_table(res)
 
 
+@pytest.mark.slow
 def test_bench_with_auto_curves_fits_dfc_on_curves_found_in_the_raster(tmp_path):
     """``--scene NAME --curves auto``: dfc gets the extractor's curves; probes and truth stay the scene's."""
     from dfc.bench.probes import labelled_probes

@@ -53,6 +53,7 @@ def _random_curves(seed: int) -> Curves:
 @settings(max_examples=15, deadline=None)
 @given(st.integers(0, 2**31 - 1))
 @example(205)  # a cusp demoted to 1e-6 line pieces: needle triangles (see test_continuity_theorem_short_edge_...)
+@pytest.mark.slow
 def test_continuity_theorem_through_triangulate(seed):
     """Random crossing lines, quadratics and cubics meshed by dfc.geometry.triangulate."""
     from dfc.geometry.triangulate import triangulate

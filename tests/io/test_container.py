@@ -235,6 +235,7 @@ def test_random_bit_flips_and_overwrites_are_refused(blob):
         assert outcome(bytes(b)) == ("valid" if changed <= {10, 11} else "refused")
 
 
+@pytest.mark.slow
 def test_hostile_chunk_data_with_valid_crcs(blob):
     """Overwrite bytes inside each chunk's data and re-frame with correct CRCs: the decoder's own checks
     must catch everything (or the result must be valid)."""

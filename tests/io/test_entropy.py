@@ -56,6 +56,7 @@ def test_groups_round_trip_and_the_fit_approaches_the_entropy():
 
 @given(scale=st.floats(0.3, 40.0), tail=st.floats(1.0, 4.0), seed=st.integers(0, 10**6))
 @settings(max_examples=25, deadline=None)
+@pytest.mark.slow
 def test_the_coarse_to_fine_search_is_near_the_full_grid(scale, tail, seed):
     """``fit_model`` searches a coarse grid and then around its best; on two-slope Laplacian values it codes within
     1 % (and 2 bytes) of the best model of the full grid."""

@@ -24,6 +24,7 @@ ENCODE = ["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json",
           BATCH, "--epoch-pixels", "65536", "-q"]
 
 
+@pytest.mark.slow
 def test_two_ranks_at_half_the_batch_match_one_rank(tmp_path, capsys):
     reports = {}
     for workers in (1, 2):
@@ -66,6 +67,7 @@ def _fit_rank(steps: int, batch: int):
         distributed.finish()
 
 
+@pytest.mark.slow
 def test_every_rank_holds_the_same_parameters():
     results = distributed.launch(2, _fit_rank, 40, 2048)
     (p0, caught0), (p1, caught1) = results[0], results[1]
@@ -73,6 +75,7 @@ def test_every_rank_holds_the_same_parameters():
     assert p0.std() > 0 and caught0 and caught1
 
 
+@pytest.mark.slow
 def test_torchrun_runs_the_same_command(tmp_path):
     out = tmp_path / "t.dfield"
     proc = subprocess.run([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc-per-node", "2",
@@ -153,6 +156,7 @@ def test_bad_worker_counts_and_damaged_input_fail_before_any_rank_starts(tmp_pat
     assert list(tmp_path.iterdir()) == [cut]
 
 
+@pytest.mark.slow
 def test_a_damaged_band_mid_file_stops_every_rank_with_one_line(tmp_path):
     data = bytearray((SAMPLES / "sample.exr").read_bytes())
     middle = len(data) // 2
