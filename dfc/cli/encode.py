@@ -93,7 +93,8 @@ def _curves_arg(ctx, param, value):
               help="Optimiser steps  [default: an image 3000; a sample set 12 passes over its samples, at least 1000; "
                    "FEM data and frames 1000].")
 @click.option("--batch-size", type=int, default=FitSettings.batch_size, show_default=True, help="Samples per step.")
-@click.option("--dim", type=int, default=FitSettings.dim, show_default=True, help="Feature channels per vertex (1..64).")
+@click.option("--dim", type=int, default=FitSettings.dim, show_default=True,
+              help="Feature channels per vertex (1..64).")
 @click.option("--feature-bits", type=int, default=None,
               help="Bits per stored feature value  [default: 10; 8, else 6, when --target-bytes is too small for "
                    "the smallest mesh at 10].")
@@ -112,7 +113,8 @@ def _curves_arg(ctx, param, value):
                    "[default: 1 with --target-bytes, else 0].")
 @click.option("--loss", type=click.Choice(LOSSES), default=FitSettings.loss, show_default=True,
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
-@click.option("--seed", type=int, default=FitSettings.seed, show_default=True, help="Seeds features, decoder and sampling.")
+@click.option("--seed", type=int, default=FitSettings.seed, show_default=True,
+              help="Seeds features, decoder and sampling.")
 @click.option("--device", default=FitSettings.device, show_default=True,
               help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
@@ -135,8 +137,8 @@ def _curves_arg(ctx, param, value):
                    "Across machines use torchrun (README).")
 @json_option
 @quiet_option
-def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling, reference_path,
-            json_path, quiet, **setting_options):
+def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling,
+            reference_path, json_path, quiet, **setting_options):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
     sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
