@@ -10,7 +10,9 @@ keyword and a read-only attribute of ``EncodeSettings`` (``EncodeSettings(steps=
 
 Adding a setting: add a field with a default to the group it belongs to and its check to that group's
 ``__post_init__``; it is then a keyword and attribute of ``EncodeSettings`` and recorded in a file's header when it
-differs from its default (``to_dict``). Torch-free.
+differs from its default (``to_dict``). On the command line, a ``dfc encode`` option whose parameter is named as the
+field reaches it through ``dfc.cli.encode.encode_settings`` (every option the command does not name in its
+signature is a setting). Torch-free.
 """
 
 from __future__ import annotations
