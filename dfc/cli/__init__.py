@@ -24,6 +24,9 @@ COMMANDS = {
     "wos": "wos",
     "solve": "solve",
     "curves": "curves",
+    "serve": "serve",
+    "view": "view",
+    "tiles": "tiles",
 }
 
 
