@@ -87,6 +87,7 @@ def run(server, quiet: bool) -> None:
         pass
     finally:
         server.server_close()
+        server.app.close()
     if not quiet:
         click.echo("dfc serve: stopped", err=True)
 

@@ -13,7 +13,8 @@ URLs (``ID``: a file's identifier, ``dfc.serve.sources.identifiers``; a compare 
 Safety: no request path reaches the file system (sources and static files are looked up in dictionaries built at
 start); a malformed or unsupported request is a 400 with a JSON body ``{"error": …}``, an output beyond the limits
 a 413, an unknown path a 404, anything unexpected a 500 with one line in the log, never a traceback to the client.
-At most ``threads`` tiles render at once; encoded tiles are kept in an LRU cache bounded in bytes.
+Tiles render (and encode) in a pool of ``threads`` threads: at most that many at once, their working memory held by
+those threads whatever the number of connections. Encoded tiles are kept in an LRU cache bounded in bytes.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import mimetypes
 import sys
 import threading
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
@@ -120,8 +122,12 @@ class App:
                 self.sources[compare.ident] = compare
         self.limits = limits or Limits()
         self.cache = TileCache(cache_bytes)
-        self.renders = threading.BoundedSemaphore(threads)
+        self.renders = ThreadPoolExecutor(threads, thread_name_prefix="render")
         self.static = _static_files()
+
+    def close(self) -> None:
+        """Stop the render pool: queued renders are dropped, one in progress finishes."""
+        self.renders.shutdown(wait=False, cancel_futures=True)
 
     def respond(self, target: str, accept: str = "") -> Response:
         """The response to a GET of ``target`` (path and query)."""
@@ -172,11 +178,13 @@ class App:
         key = (source.ident, request)
         data = self.cache.get(key)
         if data is None:
-            with self.renders:
-                pixels = source.pixels(request.region, request.size)
-            data = encode_tile(pixels, request.fmt, hdr=source.hdr)
+            data = self.renders.submit(self._render, source, request).result()
             self.cache.put(key, data)
         return Response(200, TILE_TYPES[request.fmt], data, {"Cache-Control": "public, max-age=86400"})
+
+    @staticmethod
+    def _render(source, request) -> bytes:
+        return encode_tile(source.pixels(request.region, request.size), request.fmt, hdr=source.hdr)
 
     def _value(self, source, query: dict) -> Response:
         try:
@@ -193,6 +201,7 @@ class App:
 class _Handler(BaseHTTPRequestHandler):
     server_version = "dfc-serve"
     protocol_version = "HTTP/1.1"
+    disable_nagle_algorithm = True  # headers and body leave at once (no 40 ms delayed-ACK stall per response)
 
     def do_GET(self):
         self._answer(send_body=True)
