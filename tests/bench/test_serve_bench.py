@@ -7,7 +7,12 @@ import re
 import numpy as np
 import pytest
 
-from dfc.bench.speed.serve import latency_summary, latency_table, throughput_table, tile_paths
+from dfc.bench.speed.serve import (
+    latency_summary,
+    latency_table,
+    throughput_table,
+    tile_paths,
+)
 from dfc.serve.iiif import parse_image_request
 
 from ..cli.test_cli import run
