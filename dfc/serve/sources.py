@@ -18,14 +18,19 @@ class FieldSource:
     """A loaded ``.dfield`` file: the model (loaded once, its point-location grid built once) and its tile grid.
 
     ident : the identifier in URLs; path : the file; levels_beyond : ``dfc.tiles.tile_grid``'s depth
+    Raises ``InputError`` naming ``path`` when it is not a readable ``.dfield`` file.
     """
 
     def __init__(self, ident: str, path, *, levels_beyond: int = LEVELS_BEYOND):
         from ..codec import load
+        from ..errors import DfcError, InputError
         from ..render_file import is_hdr
 
         self.ident, self.name = ident, Path(path).name
-        self.model = load(path)
+        try:
+            self.model = load(path)
+        except DfcError as e:  # several files may be served: name the one that failed
+            raise InputError(f"{path}: {e}") from None
         self.grid: TileGrid = tile_grid(self.model, levels_beyond)
         self.hdr = is_hdr(self.model)
         self.channels = list(self.model.channels)
