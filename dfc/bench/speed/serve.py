@@ -5,7 +5,9 @@ Starts ``dfc serve FILE --port 0`` as a child process on 127.0.0.1 (nothing else
 
 - latency (median, p95, p99 in ms, client side): the first tile after the server starts; ``--tiles`` distinct
   tiles beyond the input's resolution, rendered on request (cold: not in the cache); the same tiles again (warm:
-  from the cache); and the input-resolution tile (anti-aliased: 64 points in the pixels a curve crosses);
+  from the cache); and the input-resolution tile (anti-aliased: 64 points in the pixels a curve crosses); then the
+  cold tiles rendered and encoded in this process on one thread, wall and CPU time (the CPU time is what an idle
+  core takes: on a shared machine the wall time also counts waiting for a core);
 - throughput (tiles/s, every tile rendered) with 1, 2 and 16 concurrent clients (``--clients``);
 - a load test: ``--load-requests`` requests from ``--load-clients`` clients drawn from a pool of ``--load-pool``
   tiles (a viewer panning back and forth: hits and misses), stopped after ``--time-limit`` seconds; it counts
@@ -186,6 +188,7 @@ def command(dfield, n_tiles, clients, throughput_tiles, threads, cache_mb, load_
         proc.terminate()
         proc.wait(30)
     figures.update(file=str(dfield), threads=threads, cache_mb=cache_mb)
+    figures["latency"].update(_in_process(dfield, figures.pop("cold_paths")))
     click.echo(f"dfc serve {dfield.name} on 127.0.0.1, --threads {threads}, --cache-mb {cache_mb:g}: 256x256 PNG "
                f"tiles", err=err)
     click.echo(latency_table(figures["latency"]), err=err)
@@ -200,6 +203,31 @@ def command(dfield, n_tiles, clients, throughput_tiles, threads, cache_mb, load_
                    f"{cache_mb:g} MB)", err=err)
     if json_path:
         write_json(json_path, figures)
+
+
+def _in_process(dfield: Path, paths: list[str]) -> dict:
+    """Latency rows of rendering and encoding ``paths``' tiles in this process on one thread (model warmed up by one
+    tile first): wall time, and the thread's CPU time, which is the wall time an idle core would take (on a busy
+    machine the wall time also counts the waits for a core)."""
+    import torch
+
+    from ...codec import load
+    from ...serve.iiif import parse_image_request
+    from ...tiles import encode_tile, render_tile, tile_grid
+
+    torch.set_num_threads(1)
+    model = load(dfield)
+    grid = tile_grid(model)
+    wall, cpu = [], []
+    for k, path in enumerate([paths[0], *paths]):
+        request = parse_image_request(*path.split("/")[3:], grid.width, grid.height)
+        clock, clock_cpu = time.perf_counter(), time.thread_time()
+        encode_tile(render_tile(model, request.region, request.size, grid=grid), request.fmt)
+        if k:
+            wall.append(time.perf_counter() - clock)
+            cpu.append(time.thread_time() - clock_cpu)
+    return {"same tiles in-process (wall)": latency_summary(wall),
+            "same tiles in-process (CPU time)": latency_summary(cpu)}
 
 
 def _measure(host, port, ident, pid, rng, started, n_tiles, counts, throughput_tiles, load_requests, load_clients,
@@ -228,7 +256,7 @@ def _measure(host, port, ident, pid, rng, started, n_tiles, counts, throughput_t
         _, statuses, seconds = _run_clients(host, port, batch, c)
         throughput.append({"clients": c, "tiles": len(batch), "seconds": seconds,
                            "errors": sum(s != 200 for s in statuses)})
-    figures = {"grid_side": side, "grid_scale": scale, "start_to_first_tile_s": start_to_first, "latency": latency,
+    figures = {"cold_paths": cold_paths, "grid_side": side, "grid_scale": scale, "start_to_first_tile_s": start_to_first, "latency": latency,
                "throughput": throughput}
     if load_requests:
         pool = tile_paths(ident, side, load_pool, random.Random(rng.random()))
