@@ -18,7 +18,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["LEVELS_BEYOND", "TILE_SIDE", "TileGrid", "encode_tile", "render_tile", "scale_factors", "tile_grid"]
+__all__ = ["LEVELS_BEYOND", "TILE_SIDE", "TileGrid", "default_time", "encode_tile", "render_tile", "scale_factors",
+           "tile_grid"]
 
 LEVELS_BEYOND = 10
 """Default pyramid depth past the input's resolution: 2¹⁰ = 1024 tile grid pixels per input pixel (≥ 1000×)."""
@@ -82,10 +83,17 @@ def scale_factors(grid: TileGrid, tile: int = TILE_SIDE) -> list[int]:
     return [2 ** k for k in range(top + 1)]
 
 
+def default_time(model) -> float | None:
+    """The time ``dfc decode`` renders a file at by default: the first of a time-varying file's times, else None."""
+    times = model.config()["times"]
+    return None if times is None else float(times[0])
+
+
 def render_tile(model, region, size: tuple[int, int], *, grid: TileGrid | None = None, spp: int = 1,
-                edge_spp: int | None = None) -> np.ndarray:
+                edge_spp: int | None = None, t: float | None = None) -> np.ndarray:
     """Pixels (h, w, C) float32 of ``region`` (x, y, w, h in ``grid`` pixels; default grid ``tile_grid(model)``)
-    rendered at ``size`` (w, h): the render ``dfc decode --window`` makes of the same window at the same size.
+    rendered at ``size`` (w, h) and time ``t`` (default ``default_time``): the render ``dfc decode --window`` makes
+    of the same window at the same size.
 
     edge_spp : points averaged in the pixels a curve crosses; default ``dfc.render.default_edge_spp`` (anti-aliased
         at or below the input's resolution, as dfc decode does)
@@ -101,7 +109,7 @@ def render_tile(model, region, size: tuple[int, int], *, grid: TileGrid | None =
     window = (grid or tile_grid(model)).window(region)
     if edge_spp is None:
         edge_spp = default_edge_spp(model, width, height, window)
-    return render(model, width, height, window, spp=spp, edge_spp=edge_spp)
+    return render(model, width, height, window, spp=spp, edge_spp=edge_spp, t=default_time(model) if t is None else t)
 
 
 def encode_tile(pixels: np.ndarray, fmt: str, *, hdr: bool = False) -> bytes:

@@ -8,7 +8,14 @@ import sys
 
 import click
 
-from .options import THREADS_ENV, quiet_option, warn
+from .options import (
+    THREADS_ENV,
+    json_option,
+    quiet_option,
+    stdout_taken,
+    warn,
+    write_json,
+)
 
 LOOPBACK = ("localhost",)
 
@@ -25,6 +32,7 @@ def serve_options(f):
                      help="Bound of the cache of encoded tiles, in MB."),
         click.option("--levels-beyond", type=click.IntRange(0, 20), default=10, show_default=True,
                      help="Pyramid levels past the input's resolution: 10 zooms 1024x deeper."),
+        json_option,
         quiet_option,
     ]):
         f = option(f)
@@ -38,17 +46,18 @@ def serve_options(f):
               help="Address to listen on; any other than a loopback address is warned about.")
 @click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True, help="Port (0: a free one).")
 @serve_options
-def command(files, host, port, compare, threads, cache_mb, levels_beyond, quiet):
+def command(files, host, port, compare, threads, cache_mb, levels_beyond, json_path, quiet):
     """Serve FILE.dfield… as IIIF Image API 3.0 images (/iiif/ID/info.json; level 1 with pct: regions and sizes,
     !w,h, ^ upscaling, PNG and JPEG) with a deep-zoom viewer at /: tiles rendered on demand, any depth, kept in a
-    bounded cache. Only the named files are served. Stops on Ctrl-C or SIGTERM."""
-    server = start(files, compare, host, port, threads, cache_mb, levels_beyond, quiet)
+    bounded cache. Only the named files are served. Stops on Ctrl-C or SIGTERM. --json writes the URL and the
+    files' identifiers once it listens."""
+    server = start(files, compare, host, port, threads, cache_mb, levels_beyond, json_path, quiet)
     run(server, quiet)
 
 
-def start(files, compare, host, port, threads, cache_mb, levels_beyond, quiet):
-    """Load the files, bind the server and print its URL and the files' identifiers (stdout); the server, not yet
-    serving."""
+def start(files, compare, host, port, threads, cache_mb, levels_beyond, json_path, quiet):
+    """Load the files, bind the server and print its URL and the files' identifiers (stdout, or standard error when
+    ``json_path`` is ``-``; ``json_path`` also gets them as JSON); the server, not yet serving."""
     import torch
 
     from ..serve.server import App, make_server
@@ -71,10 +80,16 @@ def start(files, compare, host, port, threads, cache_mb, levels_beyond, quiet):
     bound_host, bound_port = server.server_address[:2]
     shown = f"[{bound_host}]" if ":" in bound_host else bound_host
     server.url = f"http://{shown}:{bound_port}/"
-    click.echo(f"dfc serve: {server.url}  (Ctrl-C stops)")
+    if json_path:
+        write_json(json_path, {"url": server.url, "files": [
+            {"id": s.ident, "file": path, "info": f"{server.url}iiif/{s.ident}/info.json",
+             "compare": None if r is None else f"{server.url}iiif/{r.ident}/info.json"}
+            for (s, r), path in zip(pairs, files)]})
+    err = stdout_taken(json_path)
+    click.echo(f"dfc serve: {server.url}  (Ctrl-C stops)", err=err)
     for source, raster in pairs:
         also = f", compared with {raster.name}" if raster else ""
-        click.echo(f"  {source.name}: {server.url}iiif/{source.ident}/info.json{also}")
+        click.echo(f"  {source.name}: {server.url}iiif/{source.ident}/info.json{also}", err=err)
     sys.stdout.flush()
     return server
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from .options import progress_bar, quiet_option, threads_option
+from .options import json_option, progress_bar, quiet_option, threads_option, write_json
 
 MAX_TILES = 100_000
 
@@ -24,8 +24,9 @@ MAX_TILES = 100_000
 @click.option("--max-tiles", type=click.IntRange(1), default=MAX_TILES, show_default=True,
               help="Refuse pyramids of more tiles (each level deeper has 4x as many).")
 @threads_option
+@json_option
 @quiet_option
-def command(input_path, output, fmt, levels_beyond, tile_format, base_url, max_tiles, quiet):
+def command(input_path, output, fmt, levels_beyond, tile_format, base_url, max_tiles, json_path, quiet):
     """Write a static tile pyramid of FILE.dfield into DIR that any static web host and deep-zoom viewer (OpenSeadragon,
     Mirador, Leaflet-IIIF) can serve: the pixels dfc serve sends for the same tiles, down to 2^N times the input's
     resolution."""
@@ -46,4 +47,7 @@ def command(input_path, output, fmt, levels_beyond, tile_format, base_url, max_t
                                 base_url=base_url, tile_format=tile_format, callback=lambda done, _: bar.update(1))
     index = "info.json" if fmt == "iiif" else f"{stem}.dzi"
     click.echo(f"wrote {written} tiles to {output} ({index}; {grid.width}x{grid.height} pixels, "
-               f"{grid.scale} per input pixel)")
+               f"{grid.scale} per input pixel)", err=json_path == "-")
+    if json_path:
+        write_json(json_path, {"output": output, "format": fmt, "index": index, "tiles": written,
+                               "width": grid.width, "height": grid.height, "scale": grid.scale})

@@ -133,6 +133,8 @@ class App:
         """The response to a GET of ``target`` (path and query)."""
         parts = urlsplit(target)
         segments = [unquote(s) for s in parts.path.split("/")[1:]]
+        if not segments:
+            return _error(404, "no such path")
         if segments in ([""], ["index.html"]):
             body, kind = self.static["viewer.html"]
             return Response(200, kind, body)

@@ -9,13 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..tiles import LEVELS_BEYOND, TileGrid, render_tile, tile_grid
+from ..tiles import LEVELS_BEYOND, TileGrid, default_time, render_tile, tile_grid
 
 __all__ = ["FieldSource", "RasterSource", "identifiers"]
 
 
 class FieldSource:
-    """A loaded ``.dfield`` file: the model (loaded once, its point-location grid built once) and its tile grid.
+    """A loaded ``.dfield`` file: the model (loaded once, its point-location grid built once) and its tile grid;
+    a time-varying file is shown at its first time (``dfc.tiles.default_time``).
 
     ident : the identifier in URLs; path : the file; levels_beyond : ``dfc.tiles.tile_grid``'s depth
     Raises ``InputError`` naming ``path`` when it is not a readable ``.dfield`` file.
@@ -41,9 +42,13 @@ class FieldSource:
 
     def value(self, x: float, y: float) -> list[float]:
         """The decoded value (C channels) at the domain point (x, y); points outside take the nearest border's."""
-        from ..render import values_at
+        import torch
 
-        return [float(v) for v in values_at(self.model, np.array([[x, y]], dtype=np.float64))[0]]
+        t = default_time(self.model)
+        xy = torch.tensor([[x, y]], dtype=torch.float64, device=self.model.field.bank.device)
+        with torch.no_grad():
+            values = self.model(xy) if t is None else self.model(xy, t)
+        return [float(v) for v in values[0]]
 
     def curves(self) -> dict:
         """The file's discontinuities in domain units: ``segments`` [[x0, y0, x1, y1], …] (straight edges) and

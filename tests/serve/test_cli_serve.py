@@ -2,6 +2,7 @@
 SIGTERM; bad input is one error line."""
 
 import http.client
+import json
 import os
 import signal
 import subprocess
@@ -47,9 +48,14 @@ def test_serve_stops_cleanly(sig):
     assert "Traceback" not in err and "dfc serve: stopped" in err
 
 
-def test_view_without_browser_serves_the_viewer():
-    proc, host, port = start("view", SAMPLE, "--no-browser", "--compare", SAMPLES / "sample.exr", "-q")
+def test_view_without_browser_serves_the_viewer(tmp_path):
+    record = tmp_path / "view.json"
+    proc, host, port = start("view", SAMPLE, "--no-browser", "--compare", SAMPLES / "sample.exr", "-q", "--json",
+                             record)
     try:
+        figures = json.loads(record.read_text())
+        assert figures["url"] == f"http://{host}:{port}/" and figures["files"][0]["id"] == "sample"
+        assert figures["files"][0]["compare"].endswith("/iiif/sample-compare/info.json")
         conn = http.client.HTTPConnection(host, port, timeout=60)
         conn.request("GET", "/api/files")
         r = conn.getresponse()

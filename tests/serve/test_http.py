@@ -80,7 +80,7 @@ def test_errors_are_json(server, path, status):
     "/static/../../../../etc/passwd", "/static/%2e%2e/%2e%2e/%2e%2e/etc/passwd", "/static//etc/passwd",
     "/static/..%2f..%2f..%2fetc%2fpasswd", "/iiif/..%2f..%2fsamples%2fsample/info.json", "/../../etc/passwd",
     "/iiif/../samples/sample.dfield", "/samples/sample.dfield", "/static/viewer.js/../../serve/server.py",
-    "/api/curves/..%2fsample", "/%2e%2e/dfc/tiles.py",
+    "/api/curves/..%2fsample", "/%2e%2e/dfc/tiles.py", "*", "http://127.0.0.1/../etc/passwd",
 ])
 def test_no_path_reaches_the_file_system(server, path):
     status, _, body = get(server, path)

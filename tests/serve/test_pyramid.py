@@ -64,9 +64,12 @@ def test_deep_zoom_pyramid(model, tmp_path):
 
 def test_tiles_command(tmp_path, capsys):
     out = tmp_path / "pyr"
-    code, stdout, err = run(["tiles", SAMPLE, "-o", out, "--format", "dzi", "--levels-beyond", "0", "-q"], capsys)
+    code, stdout, err = run(["tiles", SAMPLE, "-o", out, "--format", "dzi", "--levels-beyond", "0", "-q", "--json",
+                             tmp_path / "t.json"], capsys)
     assert code == 0, err
     assert "wrote 9 tiles" in stdout and (out / "sample.dzi").exists()
+    figures = json.loads((tmp_path / "t.json").read_text())
+    assert figures["tiles"] == 9 and figures["index"] == "sample.dzi" and figures["width"] == 256
     code, _, err = run(["tiles", SAMPLE, "-o", tmp_path / "big", "--levels-beyond", "3", "--max-tiles", "10"], capsys)
     assert_one_line_error(code, err, "--max-tiles")
     assert not (tmp_path / "big").exists()
