@@ -98,7 +98,8 @@ def write_pyramid(model, directory, grid: TileGrid, *, fmt: str = "iiif", name: 
     for k, (path, region, size) in enumerate(tiles):
         target = folder / f"{path}.{tile_format}"
         os.makedirs(target.parent, exist_ok=True)
-        write_bytes_atomic(target, encode_tile(render_tile(model, region, size, grid=grid), tile_format, hdr=hdr))
+        pixels = render_tile(model, region, size, grid=grid)
+        write_bytes_atomic(target, encode_tile(pixels, tile_format, hdr=hdr, channels=list(model.channels)))
         if callback is not None:
             callback(k + 1, len(tiles))
     write_bytes_atomic(root / index[0], index[1].encode())  # last: a pyramid with an index is complete

@@ -25,8 +25,8 @@ LEVELS_BEYOND = 10
 """Default pyramid depth past the input's resolution: 2¹⁰ = 1024 tile grid pixels per input pixel (≥ 1000×)."""
 TILE_SIDE = 256
 """Side of a pyramid tile in output pixels."""
-FORMATS = {"png": "PNG", "jpg": "JPEG"}
-"""Tile formats (IIIF extension → Pillow format)."""
+FORMATS = ("png", "jpg", "exr")
+"""Tile formats: 8-bit sRGB PNG and JPEG, and float32 EXR (the decoded values themselves)."""
 JPEG_QUALITY = 90
 
 
@@ -112,20 +112,23 @@ def render_tile(model, region, size: tuple[int, int], *, grid: TileGrid | None =
     return render(model, width, height, window, spp=spp, edge_spp=edge_spp, t=default_time(model) if t is None else t)
 
 
-def encode_tile(pixels: np.ndarray, fmt: str, *, hdr: bool = False) -> bytes:
-    """(h, w, C) linear float pixels → the bytes of an 8-bit sRGB PNG or JPEG (``fmt`` "png" or "jpg"; HDR values
-    tone-mapped as ``dfc decode`` does for PNG; JPEG drops alpha, and channels beyond 4 are refused)."""
+def encode_tile(pixels: np.ndarray, fmt: str, *, hdr: bool = False, channels: list[str] | None = None) -> bytes:
+    """(h, w, C) linear float pixels → the bytes of an 8-bit sRGB PNG or JPEG (HDR values tone-mapped as ``dfc
+    decode`` does for PNG; JPEG drops alpha; more than 4 channels are refused) or of a float32 EXR of the values
+    themselves, its channels named ``channels`` (default R, G, B, A or Y for 1 to 4, else c0, c1, …)."""
     from PIL import Image as PILImage
 
     from .io.image import display8
 
     if fmt not in FORMATS:
         raise InputError(f"tile format must be one of {', '.join(FORMATS)}, got {fmt!r}")
-    channels = pixels.shape[2]
-    if channels > 4:
-        raise InputError(f"8-bit tiles hold 1 to 4 channels; this file has {channels}")
+    n = pixels.shape[2]
+    if fmt == "exr":
+        return _exr_bytes(pixels, channels or _CHANNELS.get(n, [f"c{k}" for k in range(n)]))
+    if n > 4:
+        raise InputError(f"8-bit tiles hold 1 to 4 channels; this file has {n}: ask for exr")
     out = display8(pixels, hdr)
-    if fmt == "jpg" and channels in (2, 4):
+    if fmt == "jpg" and n in (2, 4):
         out = out[..., :-1]
     mode = {1: "L", 2: "LA", 3: "RGB", 4: "RGBA"}[out.shape[2]]
     buf = io.BytesIO()
@@ -135,3 +138,19 @@ def encode_tile(pixels: np.ndarray, fmt: str, *, hdr: bool = False) -> bytes:
     else:
         image.save(buf, format="PNG", compress_level=1)
     return buf.getvalue()
+
+
+_CHANNELS = {1: ["Y"], 2: ["Y", "A"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}
+
+
+def _exr_bytes(pixels: np.ndarray, channels: list[str]) -> bytes:
+    """A float32 ZIP EXR of ``pixels`` (OpenEXR writes files: through a temporary one)."""
+    import tempfile
+    from pathlib import Path
+
+    from .io.image import write_exr
+
+    with tempfile.TemporaryDirectory(prefix="dfc-tile-") as tmp:
+        path = Path(tmp) / "tile.exr"
+        write_exr(path, pixels, list(channels), half=False)
+        return path.read_bytes()

@@ -2,8 +2,9 @@
 image's ``info.json``. Pure functions of strings and sizes; the HTTP server (``dfc.serve.server``) uses them.
 
 Supported: regions ``full``, ``square``, ``x,y,w,h``, ``pct:x,y,w,h``; sizes ``max``, ``w,``, ``,h``, ``w,h``,
-``!w,h``, ``pct:n``, each also with ``^`` (upscaling); rotation ``0``; quality ``default``; formats png and jpg.
-That is compliance level 1 plus the level-2 region and size features and PNG (``info.json`` lists them).
+``!w,h``, ``pct:n``, each also with ``^`` (upscaling); rotation ``0``; quality ``default``; formats png, jpg and exr
+(float32: the decoded values). That is compliance level 1 plus the level-2 region and size features, PNG and EXR
+(``info.json`` lists them).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ __all__ = ["IIIFError", "ImageRequest", "Limits", "info", "parse_image_request"]
 
 CONTEXT = "http://iiif.io/api/image/3/context.json"
 PROFILE = "level1"
-FORMATS = ("png", "jpg")
+FORMATS = ("png", "jpg", "exr")
 EXTRA_FEATURES = ["baseUriRedirect", "cors", "jsonldMediaType", "regionByPct", "regionByPx", "regionSquare",
                   "sizeByConfinedWh", "sizeByH", "sizeByPct", "sizeByW", "sizeByWh", "sizeUpscaling"]
 
@@ -68,7 +69,7 @@ def parse_image_request(region: str, size: str, rotation: str, quality_format: s
     if quality != "default":
         raise IIIFError(f"quality {quality!r} is not supported: use default")
     if fmt not in FORMATS:
-        raise IIIFError(f"format {fmt!r} is not supported: use {' or '.join(FORMATS)}")
+        raise IIIFError(f"format {fmt!r} is not supported: use {', '.join(FORMATS)}")
     if rotation != "0":
         raise IIIFError(f"rotation {rotation!r} is not supported: use 0")
     box = _region(region, width, height)
@@ -158,5 +159,5 @@ def info(identifier: str, width: int, height: int, scale_factors: list[int], til
         doc["extraFormats"] = ["png"]
     else:
         doc.update(maxWidth=limits.max_width, maxHeight=limits.max_height, maxArea=limits.max_area,
-                   preferredFormats=["png"], extraFormats=["png"], extraFeatures=EXTRA_FEATURES)
+                   preferredFormats=["png"], extraFormats=["png", "exr"], extraFeatures=EXTRA_FEATURES)
     return doc

@@ -38,7 +38,7 @@ __all__ = ["App", "Response", "TileCache", "make_server"]
 
 JSON = "application/json"
 JSONLD = 'application/ld+json;profile="http://iiif.io/api/image/3/context.json"'
-TILE_TYPES = {"png": "image/png", "jpg": "image/jpeg"}
+TILE_TYPES = {"png": "image/png", "jpg": "image/jpeg", "exr": "image/x-exr"}
 
 
 @dataclass
@@ -186,7 +186,8 @@ class App:
 
     @staticmethod
     def _render(source, request) -> bytes:
-        return encode_tile(source.pixels(request.region, request.size), request.fmt, hdr=source.hdr)
+        return encode_tile(source.pixels(request.region, request.size), request.fmt, hdr=source.hdr,
+                           channels=source.channels)
 
     def _value(self, source, query: dict) -> Response:
         try:

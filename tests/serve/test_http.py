@@ -173,3 +173,16 @@ def test_cache_is_bounded_and_concurrent_requests_agree(server):
 
 def test_limits_fixture_is_the_servers(server):
     assert server[2].limits == LIMITS
+
+
+def test_exr_tiles_hold_the_decoded_floats(server, tmp_path):
+    from dfc.io.image import read_image
+    from dfc.tiles import render_tile
+
+    status, headers, body = get(server, "/iiif/sample/194560,46080,2560,2560/32,32/0/default.exr")
+    assert status == 200 and headers["content-type"] == "image/x-exr"
+    (tmp_path / "t.exr").write_bytes(body)
+    tile = read_image(tmp_path / "t.exr")
+    source = server[2].sources["sample"]
+    assert tile.channels == ["R", "G", "B"]
+    assert np.array_equal(tile.pixels, render_tile(source.model, (194560, 46080, 2560, 2560), (32, 32)))
