@@ -48,8 +48,8 @@ def serve_options(f):
 @serve_options
 def command(files, host, port, compare, threads, cache_mb, levels_beyond, json_path, quiet):
     """Serve FILE.dfield… as IIIF Image API 3.0 images (/iiif/ID/info.json; level 1 with pct: regions and sizes,
-    !w,h, ^ upscaling, PNG, JPEG and float EXR) with a deep-zoom viewer at /: tiles rendered on demand, any depth, kept in a
-    bounded cache. Only the named files are served. Stops on Ctrl-C or SIGTERM. --json writes the URL and the
+    !w,h, ^ upscaling, PNG, JPEG and float EXR) with a deep-zoom viewer at /: tiles rendered on demand, any depth,
+    kept in a bounded cache. Only the named files are served. Stops on Ctrl-C or SIGTERM. --json writes the URL and the
     files' identifiers once it listens."""
     server = start(files, compare, host, port, threads, cache_mb, levels_beyond, json_path, quiet)
     run(server, quiet)
