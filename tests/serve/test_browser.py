@@ -100,6 +100,15 @@ def test_viewer_keeps_the_edge_sharp_at_100x(server, browser):
     x, y = (float(v) for v in re.match(r"x (\S+)\s+y (\S+)", browser.find_element("id", "readout").text).groups())
     assert abs(x - EDGE[0]) < 0.05 and abs(y - EDGE[1]) < 0.05  # the cursor's domain point: the centre, ±5 px
 
+    overlay = ("const c = document.getElementById('overlay');"
+               "const alpha = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;"
+               "return Array.from(alpha.filter((_, k) => k % 4 == 3))")
+    assert max(browser.execute_script(overlay)) == 0  # the curves overlay is off
+    browser.find_element("id", "curves").click()
+    painted = np.array(browser.execute_script(overlay))
+    assert 0 < np.count_nonzero(painted) < painted.size // 20  # on: the edge drawn as a thin line
+    browser.find_element("id", "curves").click()
+
     target = os.environ.get("DFC_VIEWER_SCREENSHOT")
     if target:
         browser.save_screenshot(target)

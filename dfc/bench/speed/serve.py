@@ -256,7 +256,8 @@ def _measure(host, port, ident, pid, rng, started, n_tiles, counts, throughput_t
         _, statuses, seconds = _run_clients(host, port, batch, c)
         throughput.append({"clients": c, "tiles": len(batch), "seconds": seconds,
                            "errors": sum(s != 200 for s in statuses)})
-    figures = {"cold_paths": cold_paths, "grid_side": side, "grid_scale": scale, "start_to_first_tile_s": start_to_first, "latency": latency,
+    figures = {"cold_paths": cold_paths, "grid_side": side, "grid_scale": scale,
+               "start_to_first_tile_s": start_to_first, "latency": latency,
                "throughput": throughput}
     if load_requests:
         pool = tile_paths(ident, side, load_pool, random.Random(rng.random()))
