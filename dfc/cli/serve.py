@@ -70,9 +70,10 @@ def start(files, compare, host, port, threads, cache_mb, levels_beyond, json_pat
              "(the default 127.0.0.1 keeps them on this machine)", quiet)
     torch.set_num_threads(1)
     pairs = []
-    for ident, path, image in zip(identifiers(files), files, list(compare) + [None] * len(files)):
+    idents = identifiers(files)
+    for ident, path, image in zip(idents, files, list(compare) + [None] * len(files)):
         source = FieldSource(ident, path, levels_beyond=levels_beyond)
-        pairs.append((source, RasterSource(f"{ident}-compare", image, source) if image else None))
+        pairs.append((source, RasterSource(_compare_id(ident, idents), image, source) if image else None))
     try:
         server = make_server(App(pairs, cache_bytes=int(cache_mb * 1e6), threads=threads), host, port, quiet=quiet)
     except OSError as e:
@@ -105,6 +106,14 @@ def run(server, quiet: bool) -> None:
         server.app.close()
     if not quiet:
         click.echo("dfc serve: stopped", err=True)
+
+
+def _compare_id(ident: str, taken: list[str]) -> str:
+    """``ident-compare``, numbered when a served file already has that identifier."""
+    candidate, k = f"{ident}-compare", 2
+    while candidate in taken:
+        candidate, k = f"{ident}-compare-{k}", k + 1
+    return candidate
 
 
 def _loopback(host: str) -> bool:

@@ -10,7 +10,7 @@ import sys
 
 import pytest
 
-from dfc.cli.serve import _loopback
+from dfc.cli.serve import _compare_id, _loopback
 
 from ..cli.test_cli import assert_one_line_error, run
 from ..conftest import SAMPLES
@@ -79,3 +79,8 @@ def test_serve_refuses_bad_input(tmp_path, capsys):
 def test_loopback_addresses():
     assert _loopback("127.0.0.1") and _loopback("::1") and _loopback("localhost") and _loopback("127.8.0.1")
     assert not _loopback("0.0.0.0") and not _loopback("192.168.1.2") and not _loopback("example.org")
+
+
+def test_compare_identifiers_never_shadow_a_file():
+    assert _compare_id("a", ["a", "b"]) == "a-compare"
+    assert _compare_id("a", ["a", "a-compare", "a-compare-2"]) == "a-compare-3"
