@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import math
 import mimetypes
+import re
 import sys
 import threading
 from collections import OrderedDict
@@ -38,6 +39,7 @@ __all__ = ["App", "Response", "TileCache", "make_server"]
 
 JSON = "application/json"
 JSONLD = 'application/ld+json;profile="http://iiif.io/api/image/3/context.json"'
+_HOST = re.compile(r"[A-Za-z0-9.-]{1,253}(:[0-9]{1,5})?|\[[0-9A-Fa-f:.]{2,45}\](:[0-9]{1,5})?")
 TILE_TYPES = {"png": "image/png", "jpg": "image/jpeg", "exr": "image/x-exr"}
 
 
@@ -129,8 +131,9 @@ class App:
         """Stop the render pool: queued renders are dropped, one in progress finishes."""
         self.renders.shutdown(wait=False, cancel_futures=True)
 
-    def respond(self, target: str, accept: str = "") -> Response:
-        """The response to a GET of ``target`` (path and query)."""
+    def respond(self, target: str, accept: str = "", host: str = "") -> Response:
+        """The response to a GET of ``target`` (path and query); ``accept`` and ``host``: the request's headers
+        (``info.json``'s ``id`` is an absolute URL on ``host`` when it is a plain host[:port], else a path)."""
         parts = urlsplit(target)
         segments = [unquote(s) for s in parts.path.split("/")[1:]]
         if not segments:
@@ -143,7 +146,7 @@ class App:
             found = self.static.get("/".join(rest))
             return Response(200, found[1], found[0]) if found else _error(404, "no such file")
         if head == "iiif" and rest:
-            return self._iiif(rest, accept)
+            return self._iiif(rest, accept, host)
         if head == "api" and len(rest) == 1 and rest[0] == "files":
             return _json([self._describe(s, c) for s, c in self.files])
         if head == "api" and len(rest) == 2 and rest[0] in ("value", "curves"):
@@ -161,7 +164,7 @@ class App:
                 "compare": None if compare is None else {"id": compare.ident, "name": compare.name,
                                                           "info": f"/iiif/{compare.ident}/info.json"}}
 
-    def _iiif(self, rest: list[str], accept: str) -> Response:
+    def _iiif(self, rest: list[str], accept: str, host: str) -> Response:
         source = self.sources.get(rest[0])
         if source is None:
             return _error(404, f"no image {rest[0]!r}")
@@ -169,7 +172,8 @@ class App:
         if len(rest) == 1:
             return Response(303, JSON, b"", {"Location": f"/iiif/{rest[0]}/info.json"})
         if len(rest) == 2 and rest[1] == "info.json":
-            doc = info(f"/iiif/{source.ident}", grid.width, grid.height, scale_factors(grid), TILE_SIDE, self.limits)
+            base = f"http://{host}" if _HOST.fullmatch(host) else ""
+            doc = info(f"{base}/iiif/{source.ident}", grid.width, grid.height, scale_factors(grid), TILE_SIDE, self.limits)
             return _json(doc, JSONLD if "application/ld+json" in accept else JSON)
         if len(rest) != 5:
             return _error(400, "an image request reads /iiif/ID/REGION/SIZE/ROTATION/QUALITY.FORMAT")
@@ -214,7 +218,8 @@ class _Handler(BaseHTTPRequestHandler):
 
     def _answer(self, send_body: bool) -> None:
         try:
-            response = self.server.app.respond(self.path, self.headers.get("Accept", ""))
+            response = self.server.app.respond(self.path, self.headers.get("Accept", ""),
+                                               self.headers.get("Host", ""))
         except Exception as e:  # noqa: BLE001 (any failure: a log line, a JSON 500, the server goes on)
             self.log_error("error answering %r: %s: %s", self.path, type(e).__name__, e)
             response = _error(500, "internal error")

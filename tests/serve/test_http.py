@@ -26,7 +26,10 @@ def test_info_json(server):
     assert status == 200 and headers["content-type"] == "application/json"
     assert headers["access-control-allow-origin"] == "*"
     assert doc["@context"] == "http://iiif.io/api/image/3/context.json" and doc["type"] == "ImageService3"
-    assert doc["id"] == "/iiif/sample" and doc["profile"] == "level1"
+    host, port, app = server
+    assert doc["id"] == f"http://{host}:{port}/iiif/sample" and doc["profile"] == "level1"  # absolute, on Host
+    assert app.respond("/iiif/sample/info.json", host="a b/c").body.startswith(b'{"@context"')
+    assert json.loads(app.respond("/iiif/sample/info.json", host="a b/c").body)["id"] == "/iiif/sample"
     assert (doc["width"], doc["height"]) == (SIDE, SIDE)  # 1024x deeper than the input's pixels
     assert doc["tiles"][0]["scaleFactors"] == [2 ** k for k in range(11)]  # down to the input's 256 px: one tile
     assert (doc["maxWidth"], doc["maxHeight"], doc["maxArea"]) == (1024, 1024, 512 * 512)
