@@ -26,6 +26,9 @@ COMMANDS = {
     "wos": "wos",
     "solve": "solve",
     "curves": "curves",
+    "serve": "serve",
+    "view": "view",
+    "tiles": "tiles",
 }
 
 
