@@ -173,3 +173,16 @@ def render(model, width: int, height: int, window=None, *, spp: int = 1, t=None,
     """Render into memory: (height, width, C) float32. For huge outputs use ``dfc.render_file.write_render``."""
     return render_region(model, width, height, window, rows=(0, height), cols=(0, width), spp=spp, t=t,
                          edge_spp=edge_spp)
+
+
+DEFAULT_SIDE = (256, 4096)
+"""Clamp of the default render size's long side, in pixels."""
+
+
+def default_size(window: tuple[float, float, float, float], domain) -> tuple[int, int]:
+    """Render size for ``window`` when none is given: the long side as for the whole domain (its long side in
+    domain units, clamped into ``DEFAULT_SIDE``), the short side by the window's aspect ratio."""
+    long_side = min(max(round(max(domain[2] - domain[0], domain[3] - domain[1])), DEFAULT_SIDE[0]), DEFAULT_SIDE[1])
+    w, h = window[2] - window[0], window[3] - window[1]
+    scale = long_side / max(w, h)
+    return max(1, round(w * scale)), max(1, round(h * scale))

@@ -60,7 +60,7 @@ class TileGrid:
 def tile_grid(model, levels_beyond: int = LEVELS_BEYOND) -> TileGrid:
     """The ``TileGrid`` of ``model`` refined ``2 ** levels_beyond`` times (0 ≤ levels_beyond ≤ 20; the grid's
     sides stay below 2⁵³ so its pixel coordinates are exact floats)."""
-    from .cli.options import default_size
+    from .render import default_size
     from .render import input_pixel_size
 
     if not 0 <= levels_beyond <= 20:

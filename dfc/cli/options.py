@@ -24,10 +24,10 @@ from ..command import threads_option as threads_option
 from ..command import warn as warn
 from ..command import write_json as write_json
 from ..io.image import EXR_EXTENSIONS, MAX_IMAGE_SIDE
+from ..render import DEFAULT_SIDE as DEFAULT_SIDE
+from ..render import default_size as default_size
 
 OUTPUT_EXTENSIONS = EXR_EXTENSIONS + (".png",)
-DEFAULT_SIDE = (256, 4096)
-"""Default render size: the long side is the domain's long side in its own units, clamped into this range."""
 
 
 class _Numbers(click.ParamType):
@@ -73,15 +73,6 @@ def check_output(path: str, extensions=OUTPUT_EXTENSIONS, param_hint="'-o' / '--
     if not path.lower().endswith(tuple(extensions)):
         raise click.BadParameter(f"must end in {' or '.join(extensions)}, got {path!r}", param_hint=param_hint)
     return path
-
-
-def default_size(window: tuple[float, float, float, float], domain) -> tuple[int, int]:
-    """Render size for ``window`` when none is given: the long side as for the whole domain (its long side in
-    domain units, clamped into ``DEFAULT_SIDE``), the short side by the window's aspect ratio."""
-    long_side = min(max(round(max(domain[2] - domain[0], domain[3] - domain[1])), DEFAULT_SIDE[0]), DEFAULT_SIDE[1])
-    w, h = window[2] - window[0], window[3] - window[1]
-    scale = long_side / max(w, h)
-    return max(1, round(w * scale)), max(1, round(h * scale))
 
 
 def option_names(message: str, names) -> str:

@@ -29,7 +29,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from ...cli.options import json_option, quiet_option, stdout_taken, write_json
+from ...command import json_option, quiet_option, stdout_taken, write_json
 from ..neighbour import SAMPLES
 from ..timing import _status
 
