@@ -92,12 +92,12 @@ def results_markdown(results: list[tuple[str, dict]], results_link: str = "../be
     drawn: set[str] = set()
     pages = list(PAGES) + sorted({d.get("page", "bench") for _, d in results} - set(PAGES))
     lines = ["# Results", "", MARK, "",
-             "Every table and figure on this page is generated from the result files in "
+             ("Every table and figure on this page is generated from the result files in "
              f"[`benchmarks/results/`]({results_link}/) (schema: [`benchmarks/README.md`](../benchmarks/README.md)) by "
              "`python -m dfc.bench.docs`; `tests/test_docs.py` checks that this page is in sync with them. Each "
              "section names the command that produced its numbers and where they come from: `measured` (the file "
              "the command wrote) or transcribed from an earlier README (runs of 20–35 min each that were not "
-             "repeated). Rerun a command to measure your own machine.", ""]
+             "repeated). Rerun a command to measure your own machine."), ""]
     lines += ["## Contents", ""]
     for page in pages:
         docs = [(n, d) for n, d in results if d.get("page", "bench") == page]

@@ -29,9 +29,8 @@ import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["ARGS_KEY", "SCHEMA", "git_commit", "machine_note", "publish_file", "publish_record", "publishing", "rd_series",
-           "tables_from_markdown",
-           "tables_from_record", "validate"]
+__all__ = ["ARGS_KEY", "SCHEMA", "git_commit", "machine_note", "publish_file", "publish_record", "publishing",
+           "rd_series", "tables_from_markdown", "tables_from_record", "validate"]
 
 SCHEMA = "dfc-result/1"
 """The ``schema`` value of every result file."""
@@ -45,11 +44,11 @@ def git_commit() -> str | None:
     here = Path(__file__).resolve().parent
     try:
         head = subprocess.run(["git", "-C", str(here), "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, timeout=10)
+                              text=True, timeout=10, check=False)
         if head.returncode != 0:
             return None
         dirty = subprocess.run(["git", "-C", str(here), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10)
+                               capture_output=True, text=True, timeout=10, check=False)
     except (OSError, subprocess.SubprocessError):
         return None
     return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
@@ -64,7 +63,7 @@ def machine_note() -> str:
         if torch.cuda.is_available():
             parts.append(torch.cuda.get_device_name(0))
     if hasattr(os, "getloadavg"):
-        parts.append("load average {:.1f}".format(os.getloadavg()[0]))
+        parts.append(f"load average {os.getloadavg()[0]:.1f}")
     return ", ".join(parts)
 
 
@@ -118,8 +117,10 @@ def rd_series(record: dict, figure: str) -> list[dict]:
     measures = [("1×, all pixels", lambda p: p["image_psnr"]["all"]),
                 ("1×, without mixed pixels", lambda p: p["image_psnr"]["unmixed"])]
     if record.get("zoom_truth"):
-        measures += [(f"{_zkey(z)}×, mean of the probes", lambda p, k=_zkey(z): p["psnr"][k])
-                     for z in record["zooms"] if z > 1]
+        for z in record["zooms"]:
+            if z > 1:
+                key = _zkey(z)
+                measures.append((f"{key}×, mean of the probes", lambda p, k=key: p["psnr"][k]))
     series = []
     for panel, value in measures:
         for method, points in record["curves"].items():
