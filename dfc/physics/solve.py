@@ -63,7 +63,7 @@ flux over ``w``, so ``w`` must be large against the energy (of order 1 to 10 in 
 scenes), but a stiffer penalty slows Adam down: on ``samples/diffusion_small.json`` (1000 steps, batch 4096,
 against the 256² reference) ``w = 1e3`` gave 35.9 dB and ``w = 1e4`` 31.9 dB."""
 DFC_LR = 1e-2
-"""Adam's starting learning rate for dfc's features and MLP (DESIGN §6's, as for fitting images)."""
+"""Adam's starting learning rate for dfc's features and MLP (docs/design.md §6's, as for fitting images)."""
 FINAL_LR_FACTOR = 0.1
 """The learning rate decays geometrically to this fraction of its start."""
 QAT_SHARE = 0.1

@@ -1,5 +1,5 @@
-"""Data-parallel training on PyTorch's own engine (DESIGN §10): ``torch.distributed``, ``DistributedDataParallel``
-and ``torchrun``'s elastic launcher.
+"""Data-parallel training on PyTorch's own engine (docs/design.md §10): ``torch.distributed``,
+``DistributedDataParallel`` and ``torchrun``'s elastic launcher.
 
 A run of N ranks is N processes: started by ``torchrun --nproc-per-node N -m dfc encode …`` (any number of nodes,
 see the README), or by ``launch`` (``dfc encode --workers N``: the same elastic agent, local ranks, a free port).

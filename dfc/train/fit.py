@@ -1,6 +1,7 @@
-"""Fitting a field model to samples of a signal (DESIGN §6): the entry points ``fit_image``, ``fit_samples`` and
-``fit_frames`` wire a signal and a mesh into a fresh ``FieldModel`` trained by ``dfc.train.loop.train`` on a data
-sampler (``dfc.train.samplers``), with defaults measured on the sample scene. Deterministic on CPU for a given seed.
+"""Fitting a field model to samples of a signal (docs/design.md §6): the entry points ``fit_image``,
+``fit_samples`` and ``fit_frames`` wire a signal and a mesh into a fresh ``FieldModel`` trained by
+``dfc.train.loop.train`` on a data sampler (``dfc.train.samplers``), with defaults chosen by the measurements in
+CHANGELOG.md. Deterministic on CPU for a given seed.
 """
 
 from __future__ import annotations
@@ -71,7 +72,7 @@ def fit(
     sampler : ``(step, generator) -> (xy (B, 2), target (B, C)[, extra])`` tensors on the model's device
         (``dfc.train.samplers``; ``extra`` as ``DataLoss`` takes it)
     steps : number of optimiser steps
-    lr, betas : Adam settings (DESIGN §6: 1e-2, (0.9, 0.99))
+    lr, betas : Adam settings (docs/design.md §6: 1e-2, (0.9, 0.99))
     loss : {"mse", "relmse", "logmse"}, see ``loss_value``
     seed : seeds the CPU generator handed to the sampler
     callback : called after each step as ``callback(step, loss, psnr)``; psnr is of the batch, in dB
