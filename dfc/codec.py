@@ -38,16 +38,13 @@ SAMPLE_PIECES = 1.55
 """Sample sets: curved pieces are cut to at most the domain's longer side / (``SAMPLE_PIECES`` · n^¼) for n
 samples before meshing (``sample_piece_length``, ``dfc.geometry.curves.split_pieces``). A curved piece's sliver
 carries one curve feature, so long pieces leave a wide band along the curve with little freedom; short ones force
-triangles whose features see few samples each. On the pepper at 11 spp, with the samples' triangles on top of the
-curves' (``dfc.rate.sample_mesh_size``), 1/32 of the side beat 1/64 at 128² (180k samples: 10.1× against 5.4× less
-error variance than the raw mean, in 31 % fewer bytes) and 1/64 beat 1/32 at 500² (2.75M samples: 39× against 33×);
-n^¼ passes through both."""
+triangles whose features see few samples each; n^¼ follows the best length measured at two sample counts
+(CHANGELOG.md, "Sample sets sized to their samples")."""
 
 SAMPLE_PASSES = 12
 """``dfc encode`` of a sample set without ``--steps`` runs enough steps for this many passes over its samples, at
-least ``DEFAULT_STEPS`` (``sample_steps``): 2.75M walk-on-spheres samples of the pepper at 500² and 11 spp, fitted
-for 1000 steps (6 passes), denoised 26× or 40× depending on the seed alone; 1,813 steps (12 passes) gave 39× and
-41×."""
+least ``DEFAULT_STEPS`` (``sample_steps``): fewer passes leave large sample sets unconverged (CHANGELOG.md,
+"Sample sets sized to their samples")."""
 
 HOLDOUT_FRACTION = 0.1
 """Sample sets: this share of the samples (at most ``HOLDOUT_MAX``, none below ``HOLDOUT_MIN_SAMPLES``) is left out
@@ -58,7 +55,7 @@ TARGET_PSNR_ROUNDS = 4
 FEM_TARGET_PSNR = 50.0
 """A FEM encode without a mesh-size option, target or ``refine`` aims at this PSNR at the nodes (dB, against the
 values' span; up to ``TARGET_PSNR_ROUNDS`` refinement rounds) instead of a fixed triangle count: simulation data asks
-for more triangles the more wavelengths or layers it holds (README "Rate and quality levers")."""
+for more triangles the more wavelengths or layers it holds (CHANGELOG.md, "FEM solutions sized to their signal")."""
 HOLDOUT_MAX = 1 << 18
 HOLDOUT_MIN_SAMPLES = 100
 
@@ -68,7 +65,8 @@ Callback = Callable[..., None]
 
 @dataclass
 class EncodeSettings:
-    """Every knob of an encode; stored in the file's header (``encoder``) so a decode never depends on defaults.
+    """Every knob of an encode. The file's header records those that differ from this software version's defaults
+    (``encoder_info``: the ``encoder`` record, informative); decoding depends on none of them.
 
     Mesh size (``dfc.rate``): ``max_triangles``, ``max_area``, ``edge_length`` or ``target_bytes``; then ``refine``
     rounds of error-driven refinement (``_refine``: each splits the triangles holding ``dfc.rate.REFINE_SHARE`` of
@@ -189,10 +187,8 @@ def encode_model(model, settings, info: dict | None = None, pixel_size=None) -> 
 
 def encoder_info(settings, source: str, extra: dict) -> dict:
     """The header's ``encoder`` record: software, curves source, the settings (a dataclass whose fields all have
-    defaults) that differ from their defaults — the others are the named software version's — and ``extra``.
-
-    Every setting written out took 456 of the 2 KB of a small file (the zstd-compressed header JSON); the settings
-    that differ keep the record complete at about a third of that."""
+    defaults) that differ from their defaults — the others are the named software version's — and ``extra``
+    (spec/dfield.md §5; why only those: CHANGELOG.md, "Compact header")."""
     defaults = type(settings)()
     changed = {f.name: getattr(settings, f.name) for f in fields(settings)
                if getattr(settings, f.name) != getattr(defaults, f.name)}

@@ -74,8 +74,8 @@ def sigterm_unwinds():
 OPENMP_ENVIRONMENT = {"OMP_WAIT_POLICY": "PASSIVE"}
 """Set (unless the user set them) before torch is loaded. OpenMP's idle worker threads otherwise spin, waiting
 for the next parallel region: two such programs on the same cores (a batch encoded in parallel, tests beside a
-build, a shared CI runner) take turns spinning instead of working: a 60-step encode of the sample with two threads
-took 43.5 s spinning and 8.3 s sleeping on the busy development machine (README, "Threads")."""
+build, a shared CI runner) take turns spinning instead of working (docs/cli.md, "Threads"; measured:
+docs/results.md, "Threads and OpenMP wait policy")."""
 
 
 def quiet_openmp() -> None:

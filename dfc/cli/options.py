@@ -102,10 +102,9 @@ def progress_bar(total: int, label: str, quiet: bool, *, unit: str = "step"):
 # -- threads ------------------------------------------------------------------------------------------------------
 THREADS_ENV = "DFC_THREADS"
 DEFAULT_THREADS = 1
-"""torch CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on the
-2-core development machine (README, "Threads"): with idle threads sleeping, one thread is within a few per cent of
-two on the busy shared machine and 1.6× faster beside a program whose threads spin; two are up to 1.4× faster only
-on an idle machine."""
+"""torch CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise: never far from
+the best and never collapsing beside other programs (docs/cli.md, "Threads"; measured: docs/results.md, "Threads and
+OpenMP wait policy")."""
 
 
 def _set_threads(ctx, param, value):
