@@ -55,11 +55,12 @@ def git_commit() -> str | None:
 
 
 def machine_note() -> str:
-    """Operating system, architecture, CPU count, torch threads and GPU (if torch is loaded), and the load average."""
+    """Operating system, architecture, CPU count, torch version and GPU (if torch is loaded), and the load average
+    (a run's thread counts are its own figures)."""
     parts = [f"{platform.system()} {platform.machine()}", f"{os.cpu_count()} CPUs"]
     torch = sys.modules.get("torch")
     if torch is not None:
-        parts.append(f"torch {torch.__version__}, {torch.get_num_threads()} thread(s)")
+        parts.append(f"torch {torch.__version__}")
         if torch.cuda.is_available():
             parts.append(torch.cuda.get_device_name(0))
     if hasattr(os, "getloadavg"):

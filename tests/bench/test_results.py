@@ -29,3 +29,13 @@ def test_benchmark_json_is_a_result_file_that_keeps_the_figures(tmp_path):
     assert doc["title"] == "dfc benchmark mesh" and "--triangles 300" in doc["command"]
     assert doc["triangles"] > 0
     assert ["triangles", doc["triangles"]] in doc["tables"][0]["rows"]
+
+
+def test_a_bench_record_becomes_a_result_file_keeping_its_keys():
+    from dfc.bench.results import publish_record
+
+    markdown = "# dfc bench: shapes\n\nnotes\n\n| method | bytes |\n|---|---:|\n| dfc | 2048 |\n"
+    doc = publish_record({"methods": {"dfc": {"bytes": 2048}}, "title": "kept out"}, markdown, command="dfc bench x")
+    assert validate(doc) == [] and doc["command"] == "dfc bench x" and doc["title"] == "dfc bench: shapes"
+    assert doc["methods"] == {"dfc": {"bytes": 2048}}
+    assert doc["tables"] == [{"title": "dfc bench: shapes", "columns": ["method", "bytes"], "rows": [["dfc", "2048"]]}]
