@@ -132,7 +132,7 @@ def _curves_arg(ctx, param, value):
 @click.option("--workers", type=click.IntRange(min=1), default=1, show_default=True,
               help="Image input: train data-parallel on N local ranks (torch.distributed: gloo on CPU, NCCL with "
                    "--device cuda, one GPU per rank), each reading its own bands; --batch-size is split between them. "
-                   "Across machines use torchrun (README).")
+                   "Across machines use torchrun (docs/gigapixel.md).")
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, target_psnr, steps,
