@@ -1,6 +1,7 @@
 """The generated results page and figures match the committed result files (``python -m dfc.bench.docs``)."""
 
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -55,3 +56,27 @@ def test_a_file_off_the_schema_is_refused_by_name(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps({"schema": "dfc-result/1", "title": "t"}))
     with pytest.raises(ValueError, match="bad.json"):
         load_results(tmp_path)
+
+
+def _anchors(path: Path) -> set[str]:
+    text = path.read_text()
+    heads = {re.sub(r"[^\w\- ]", "", line.lstrip("#").replace("`", "").strip().lower()).replace(" ", "-")
+             for line in text.splitlines() if line.startswith("#")}
+    return heads | set(re.findall(r'<a id="([^"]+)"', text))
+
+
+def test_every_link_of_the_readme_and_docs_resolves_inside_the_repository():
+    pages = [ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "benchmarks" / "README.md", *sorted(DOCS.glob("*.md"))]
+    broken = []
+    for page in pages:
+        text = re.sub(r"```.*?```", "", page.read_text(), flags=re.DOTALL)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if target.startswith(("http://", "https://")):
+                continue
+            path, _, anchor = target.partition("#")
+            resolved = (page.parent / path).resolve() if path else page.resolve()
+            if ROOT.resolve() not in resolved.parents or not resolved.exists():
+                broken.append(f"{page.name}: {target}")
+            elif anchor and resolved.suffix == ".md" and anchor not in _anchors(resolved):
+                broken.append(f"{page.name}: {target} (no such anchor)")
+    assert broken == []
