@@ -219,7 +219,8 @@ def main(results_dir: str, docs_dir: str, only_check: bool) -> None:
         for path in generate(Path(results_dir), Path(docs_dir)):
             click.echo(f"wrote {path}")
     except (OSError, ValueError) as e:
-        raise click.ClickException(str(e)) from None
+        click.echo(f"dfc: error: {e}", err=True)
+        sys.exit(1)
 
 
 if __name__ == "__main__":
