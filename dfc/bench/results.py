@@ -111,23 +111,22 @@ def tables_from_record(record: dict) -> list[dict]:
 
 
 def rd_series(record: dict, figure: str) -> list[dict]:
-    """The lines of an RD sweep's plot (``dfc.bench.rd.rd_record``'s ``curves``): per method and measure, bytes
-    against PSNR, for the figure named ``figure``."""
-    from .compare import LABELS, _zkey
-
+    """The lines of an RD sweep's plot (``dfc.bench.rd.rd_record``'s ``curves``): per method and measure (1× on all
+    pixels and without the mixed ones, then each zoom's mean over the probes), bytes against PSNR, for the figure
+    named ``figure``; each method labelled as its budgets' records label it."""
+    labels = {m: r.get("label", m) for run in record.get("runs", []) for m, r in run.get("methods", {}).items()}
+    points = [p for pts in record["curves"].values() for p in pts]
+    zooms = [z for z in dict.fromkeys(k for p in points for k in p.get("psnr", {})) if float(z) > 1]
     measures = [("1×, all pixels", lambda p: p["image_psnr"]["all"]),
                 ("1×, without mixed pixels", lambda p: p["image_psnr"]["unmixed"])]
     if record.get("zoom_truth"):
-        for z in record["zooms"]:
-            if z > 1:
-                key = _zkey(z)
-                measures.append((f"{key}×, mean of the probes", lambda p, k=key: p["psnr"][k]))
+        measures += [(f"{z}×, mean of the probes", lambda p, k=z: p["psnr"].get(k)) for z in zooms]
     series = []
     for panel, value in measures:
-        for method, points in record["curves"].items():
-            pts = [(p["bytes"], value(p)) for p in points if "bytes" in p and value(p) is not None]
-            series.append({"figure": figure, "panel": panel, "label": LABELS.get(method, method),
-                           "x": [x for x, _ in pts], "y": [round(y, 2) for _, y in pts], "x_label": "bytes",
+        for method, pts in record["curves"].items():
+            xy = [(p["bytes"], value(p)) for p in pts if "bytes" in p and value(p) is not None]
+            series.append({"figure": figure, "panel": panel, "label": labels.get(method, method),
+                           "x": [x for x, _ in xy], "y": [round(y, 2) for _, y in xy], "x_label": "bytes",
                            "y_label": "PSNR (dB)", "x_log2": True})
     return series
 
@@ -136,7 +135,8 @@ def publish_record(record: dict, markdown: str, command: str | None = None) -> d
     """``record`` (a ``dfc bench`` record) with the result-file keys added: the tables of its ``results.md``
     (``markdown``), the RD series when it is an RD sweep, and this run's command, date, commit and machine. The
     record's own keys are kept."""
-    title = next((line.lstrip("#").strip() for line in markdown.splitlines() if line.startswith("#")), "dfc bench")
+    title = f"dfc bench{' --rd' if record.get('rd') else ''}: {record['input']}" if "input" in record else next(
+        (line.lstrip("#").strip() for line in markdown.splitlines() if line.startswith("#")), "dfc bench")
     extra = {"schema": SCHEMA, "title": title, "page": "bench", "command": command or _command_line(),
              "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"), "commit": git_commit(),
              "machine": machine_note(), "source": "measured", "tables": tables_from_markdown(markdown)}

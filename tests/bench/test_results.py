@@ -39,3 +39,16 @@ def test_a_bench_record_becomes_a_result_file_keeping_its_keys():
     assert validate(doc) == [] and doc["command"] == "dfc bench x" and doc["title"] == "dfc bench: shapes"
     assert doc["methods"] == {"dfc": {"bytes": 2048}}
     assert doc["tables"] == [{"title": "dfc bench: shapes", "columns": ["method", "bytes"], "rows": [["dfc", "2048"]]}]
+
+
+def test_rd_series_are_bytes_against_psnr_per_method_and_measure():
+    from dfc.bench.results import rd_series
+
+    point = {"bytes": 2000, "image_psnr": {"all": 40.123, "unmixed": 45.0}, "psnr": {"1": 40.0, "10": 50.0}}
+    record = {"rd": True, "zoom_truth": True, "curves": {"dfc": [point, {"budget": 1000, "failed": "too small"}]},
+              "runs": [{"methods": {"dfc": {"label": "dfc"}}}]}
+    series = rd_series(record, "rd_x")
+    assert [s["panel"] for s in series] == ["1×, all pixels", "1×, without mixed pixels", "10×, mean of the probes"]
+    assert series[0] == {"figure": "rd_x", "panel": "1×, all pixels", "label": "dfc", "x": [2000], "y": [40.12],
+                         "x_label": "bytes", "y_label": "PSNR (dB)", "x_log2": True}
+    assert series[2]["y"] == [50.0]
