@@ -30,8 +30,8 @@ REFINE_SHARE = 0.5
 NOISY_SAMPLES_PER_TRIANGLE = 500
 """Sample sets without a mesh-size option get the triangles their curves force plus about one per this many
 samples (at most ``DEFAULT_TRIANGLES``) spent away from the curves: a finer mesh fits the noise of Monte Carlo
-samples, and a mesh of the forced triangles alone has no interior vertices (long slivers between the curves) — on the
-pepper at 128² and 11 spp such a mesh denoised 1.75×, this one 13× (README "Rate and quality levers")."""
+samples, and a mesh of the forced triangles alone has no interior vertices (long slivers between the curves;
+CHANGELOG.md, "Sample sets sized to their samples")."""
 PIXELS_PER_TRIANGLE = 16
 """Images without a mesh-size option get at most one triangle per this many pixels (and at most
 ``DEFAULT_TRIANGLES``, which a 256 × 256 image already reaches): a 64 × 64 image gets 256, a 1 × 1 image the two
@@ -43,16 +43,14 @@ FILL_CARRY_POINTS = 1 << 14
 """``fill_points`` prices a candidate mesh with a carry-over fitted at about this many of the caller's points."""
 FEATURE_BITS_FALLBACK = (8, 6)
 """Feature bits an encode with the default bits (``dfc.codec.EncodeSettings.feature_bits`` None) tries, in order,
-when its byte target is too small for the smallest mesh with ``dfc.field.quantize.DEFAULT_FEATURE_BITS``: on the
-README sample a 2 KB target refused at 10 bits writes 1,976 bytes at 48.5 dB with 8 (AVIF: 47.8 dB)."""
+when its byte target is too small for the smallest mesh with ``dfc.field.quantize.DEFAULT_FEATURE_BITS`` (with a
+note; CHANGELOG.md, "Small byte targets keep working")."""
 DECODER_HIDDEN = (8, 64)
-"""Narrowest and widest hidden layers ``decoder_hidden`` gives (64: the paper's decoder). A 32-wide cap gave files
-25–27 % smaller at −0.5 … +0.4 dB after 600 steps (``samples/sample.exr``, the bench scenes at 256², shapes at 1024²)
-but converges more slowly: after 300 steps an HDR image lost its saturated colours, so it is not the default."""
+"""Narrowest and widest hidden layers ``decoder_hidden`` gives (64: the paper's decoder). A 32-wide cap converges
+more slowly on short HDR fits, so it is not the default (CHANGELOG.md, "Measured and not made default")."""
 DECODER_SHARE = 0.15
-"""Under a byte target the decoder's weights take at most this share of it (``decoder_hidden``): at 12 KB width 32
-(1.7 KB) instead of 64 (5.2 KB, whose bytes buy no quality) gave +0.35 dB on the ``sample`` scene and +2.35 dB on
-``strokes`` at 1×, in 10 % fewer bytes (``dfc benchmark rate``, README "Rate and quality levers")."""
+"""Under a byte target the decoder's weights take at most this share of it (``decoder_hidden``); the rest buys
+triangles (CHANGELOG.md, "The decoder's share of a byte target"; docs/results.md, "Rate and quality levers")."""
 
 
 def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | None = None) -> Mesh:

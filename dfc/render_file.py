@@ -1,4 +1,4 @@
-"""Rendering a field model into an image file region by region, optionally in worker processes (DESIGN §10).
+"""Rendering a field model into an image file region by region, optionally in worker processes (docs/design.md §10).
 
 Large EXR outputs (more than ``TILED_PIXELS`` pixels, or wider than a scanline file here takes) are written as tiled
 EXR, tile by tile (``dfc.io.tiled``); smaller EXR outputs and PNG as scanline files in row blocks (``dfc.io.image``). Each region — a tile, or a block

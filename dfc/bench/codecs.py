@@ -13,10 +13,10 @@ for HDR colours), as every PSNR of the comparison.
 
 Two codecs cannot always spend the budget. AVIF's quality has 64 steps (libavif's quantisers), which at high rates
 are 30–50 % apart in size: its stream may stay well below the budget, and ``Coded.next_bytes`` records the size of
-the next step up, which does not fit. (Filling the gap by coding a slightly downscaled raster at the next step was
-tried: on the README sample at 8 KB it scored 45 dB at 1× against 58 dB for the smaller full-size stream.) A codec
-whose top quality still fits is *saturated* (WebP: its lossy streams top out near 39 dB on the README sample; small
-images saturate every codec).
+the next step up, which does not fit. (Filling the gap by coding a slightly downscaled raster at the next step
+scores far lower than the smaller full-size stream, so it is not done: CHANGELOG.md, "Measured and not made
+default".) A codec whose top quality still fits is *saturated* (WebP's lossy streams saturate early; small images
+saturate every codec).
 
 The decoded raster is shown at zoom through ``dfc.bench.baselines.upsample.PixelImage``.
 """
@@ -43,7 +43,8 @@ SIDE_BYTES = 8
 JXL_EFFORT = 7
 """libjxl's effort (its default)."""
 AVIF_SPEED = 2
-"""libavif's speed (0 slowest … 10): on the README sample 0.1 dB below its slowest default, 2× faster."""
+"""libavif's speed (0 slowest … 10): about as good as its slowest setting on the README sample, twice as fast
+(CHANGELOG.md, "Benchmark settings")."""
 BISECTION_STEPS = 14
 """Bisection steps of a continuous quality knob."""
 LOG_EPS = 1e-4

@@ -27,8 +27,9 @@ from ..metrics import quality_scale
 __all__ = ["REFERENCE_SPP", "MitsubaReference", "is_scene_file", "mitsuba_inputs"]
 
 REFERENCE_SPP = 256
-"""Default samples per pixel of the references (and of the input when rendered here): on the sample scene two
-independent 128-spp halves put a 256-spp reference about 44 dB (tone-mapped) from the noise-free image."""
+"""Default samples per pixel of the references (and of the input when rendered here). Each reference is two
+independent halves whose difference estimates its own PSNR, the ceiling of any method measured against it
+(docs/scenes.md)."""
 BOX = {"type": "box"}
 
 

@@ -79,10 +79,13 @@ def _finite(obj):
 
 def write_report(directory: str | Path, record: dict, markdown: str, sheet: bytes | None, blob: bytes | None,
                  extra: dict[str, bytes] | None = None) -> list[Path]:
-    """Write ``results.json`` (``record``; non-finite numbers as null), ``results.md`` and, when given,
-    ``contact.png``, ``dfc.dfield`` and the ``extra`` files {name: bytes} (plots) into ``directory`` (created if
-    missing), each atomically. Returns the paths written."""
+    """Write ``results.json`` (``record`` as a result file, ``dfc.bench.results.publish_record``; non-finite numbers
+    as null), ``results.md`` and, when given, ``contact.png``, ``dfc.dfield`` and the ``extra`` files {name: bytes}
+    (plots) into ``directory`` (created if missing), each atomically. Returns the paths written."""
     from ..io.atomic import write_bytes_atomic
+    from .results import publish_record
+
+    record = publish_record(record, markdown)
 
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)

@@ -32,8 +32,8 @@ __all__ = ["LEARNING_RATES", "SOLVE_METHODS", "SolveBenchSettings", "contact_she
 
 SOLVE_METHODS = ("dfc", "tanh_field", "siren", "tanh_mlp")
 LEARNING_RATES = {"dfc": 1e-2, "tanh_field": 1e-2, "siren": 1e-4, "tanh_mlp": 1e-3}
-"""Adam's starting learning rate per method (each decays by ``dfc.physics.solve.FINAL_LR_FACTOR``): dfc's is DESIGN §6's,
-the grid's the ReLU field's; SIREN's is the SIREN paper's and the MLP's the usual PINN value."""
+"""Adam's starting learning rate per method (each decays by ``dfc.physics.solve.FINAL_LR_FACTOR``): dfc's is
+docs/design.md §6's, the grid's the ReLU field's; SIREN's is the SIREN paper's and the MLP's the usual PINN value."""
 LABELS = {"reference": "reference", "dfc": "dfc", "tanh_field": "TanH field", "siren": "SIREN", "tanh_mlp": "MLP"}
 ERROR_GAIN = 4.0
 """Error maps show ``ERROR_GAIN × |f − reference|`` (mean over channels) as grey."""

@@ -6,10 +6,16 @@ import pkgutil
 import click
 
 from ..bench import speed as benchmarks
+from ..bench.results import ARGS_KEY, publishing
 
 
 class _BenchGroup(click.Group):
-    """One command per module of ``dfc.bench.speed``; a module ``a_b`` is the command ``a-b``."""
+    """One command per module of ``dfc.bench.speed``; a module ``a_b`` is the command ``a-b``, whose ``--json PATH``
+    is a result file (``dfc.bench.results``)."""
+
+    def parse_args(self, ctx, args):
+        ctx.meta[ARGS_KEY] = list(args)
+        return super().parse_args(ctx, args)
 
     def list_commands(self, ctx):
         return sorted(m.name.replace("_", "-") for m in pkgutil.iter_modules(benchmarks.__path__))
@@ -17,7 +23,7 @@ class _BenchGroup(click.Group):
     def get_command(self, ctx, name):
         if name not in self.list_commands(ctx):
             return None
-        return importlib.import_module(f"dfc.bench.speed.{name.replace('-', '_')}").command
+        return publishing(importlib.import_module(f"dfc.bench.speed.{name.replace('-', '_')}").command, name)
 
 
 @click.group(cls=_BenchGroup)

@@ -134,7 +134,7 @@ def _curves_arg(ctx, param, value):
 @click.option("--workers", type=int, default=RunSettings.workers, show_default=True,
               help="Image input: train data-parallel on N local ranks (torch.distributed: gloo on CPU, NCCL with "
                    "--device cuda, one GPU per rank), each reading its own bands; --batch-size is split between them. "
-                   "Across machines use torchrun (README).")
+                   "Across machines use torchrun (docs/gigapixel.md).")
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling,

@@ -1,4 +1,4 @@
-"""The discontinuity-aware feature field (DESIGN §5): point location, bank layout, side test,
+"""The discontinuity-aware feature field (docs/design.md §5): point location, bank layout, side test,
 interpolation, and the ``FeatureField`` module that ties them together."""
 
 from .feature_field import FeatureField

@@ -1,4 +1,4 @@
-"""``FeatureField``: the discontinuity-aware feature field on a curved mesh (DESIGN §5).
+"""``FeatureField``: the discontinuity-aware feature field on a curved mesh (docs/design.md §5).
 
 A point ``x`` maps to at most seven (bank row, weight) pairs (``dfc.field.interp``) and its feature
 is their weighted sum, a gather done by ``torch.nn.functional.embedding_bag``; autograd provides

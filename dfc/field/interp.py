@@ -1,4 +1,4 @@
-"""Queries -> (bank row, weight) pairs: radial + barycentric interpolation with curved triangles (DESIGN §5).
+"""Queries -> (bank row, weight) pairs: radial + barycentric interpolation with curved triangles (docs/design.md §5).
 
 For a query ``x`` in triangle ``T`` with barycentric coordinates ``λ`` the feature is
 ``F(x) = Σ_k w_k P[i_k]`` over seven slots:

@@ -1,4 +1,4 @@
-"""Parameter-bank layout of the discontinuity-aware feature field (DESIGN §5).
+"""Parameter-bank layout of the discontinuity-aware feature field (docs/design.md §5).
 
 The layout is a deterministic function of the mesh alone: a ``.dfield`` file stores the bank as-is
 and the decoder rebuilds this layout from the decoded mesh.

@@ -23,10 +23,9 @@ class MLP(nn.Module):
 
     Mixed precision (``mixed_precision``): on CUDA the hidden layers run in bfloat16 under ``torch.autocast`` and the
     output layer in float32. bfloat16 keeps float32's range, so gradients need no loss scaling (and no per-step
-    overflow check, which would sync with the host). CPU tensors always run in float32. Measured with the CPU's
-    bfloat16 autocast (the same rounding), 1,000 steps of ``dfc encode``: the shipped LDR sample 41.13 dB against
-    41.11 dB in float32 (float16: 41.10 dB), but the ``hdr`` scene (log transform) 41.10 / 41.17 dB against
-    41.25 / 41.34 dB (two seeds) — so ``FieldModel`` turns it on for the identity transform only.
+    overflow check, which would sync with the host). CPU tensors always run in float32. ``FieldModel`` turns it on
+    for the identity value transform only: log-transformed (HDR) fits lose PSNR in bfloat16 (CHANGELOG.md,
+    "bfloat16 hidden layers on CUDA").
     """
 
     mixed_precision = False

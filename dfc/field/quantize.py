@@ -25,10 +25,8 @@ from torch import nn
 
 MAX_FEATURE_BITS = 16
 DEFAULT_FEATURE_BITS = 10
-"""Bits per stored feature value unless told otherwise. At equal bytes (``dfc benchmark rate``, byte targets of 4–20
-KB) 10 bits beat 8 by +0.6 to +1.1 dB at 1× on ``sample`` and ``shapes`` (+0.1 on ``strokes`` and ``hdr``) and by
-4–14 dB in smooth-region windows, where 8-bit features had been the ceiling, for fewer triangles (README "Rate and
-quality levers")."""
+"""Bits per stored feature value unless told otherwise (``--feature-bits``; 1 … ``MAX_FEATURE_BITS``). Why 10:
+CHANGELOG.md, "10-bit features"; the measurements: docs/results.md, "10-bit features"."""
 MIN_WEIGHT_BITS, MAX_WEIGHT_BITS = 2, 16
 
 

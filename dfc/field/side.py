@@ -1,6 +1,6 @@
-"""Which side of a curved piece a point lies on, exactly and without implicitisation (DESIGN §5).
+"""Which side of a curved piece a point lies on, exactly and without implicitisation (docs/design.md §5.4).
 
-Every curved piece is pre-split (DESIGN §3) so that it is a graph over its chord. In the piece's
+Every curved piece is pre-split (docs/design.md §3) so that it is a graph over its chord. In the piece's
 *chord frame* the chord is ``[0, 1] × {0}`` and the apex of its triangle has ``v > 0``; the piece
 is then ``(x(t), y(t))`` with ``x`` increasing from 0 to 1. A query ``(u, v)`` with ``u`` clamped
 into ``[0, 1]`` is in the *sliver* (between the chord and the piece) iff ``v < y(t*)`` where

@@ -1,4 +1,4 @@
-"""Curve clean-up before meshing (DESIGN §3 and §4 point 3).
+"""Curve clean-up before meshing (docs/design.md §3 and §4 point 3).
 
 ``clean`` turns arbitrary Bézier pieces into pieces that the mesher can use as they are:
 

@@ -1,4 +1,4 @@
-"""The curved constrained triangulation the feature field lives on (DESIGN §4).
+"""The curved constrained triangulation the feature field lives on (docs/design.md §4).
 
 Plain arrays with fixed shapes; ``validate()`` checks every invariant the interpolation relies on.
 Built by ``dfc.geometry.triangulate`` (module ``dfc.geometry.triangulate``); read back from ``.dfield`` files.
@@ -71,7 +71,7 @@ class Mesh:
         return np.unique(e, axis=0, return_counts=True)
 
     def validate(self) -> None:
-        """Raise ``MeshError`` with a precise message if any invariant of DESIGN §4 is broken.
+        """Raise ``MeshError`` with a precise message if any invariant of docs/design.md §4 is broken.
 
         Checks array shapes and dtypes, index ranges, counter-clockwise non-degenerate triangles that
         tile the domain exactly and conform (every interior edge shared by exactly two triangles, in

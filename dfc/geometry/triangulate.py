@@ -1,4 +1,4 @@
-"""Curved constrained triangulation of the domain rectangle (DESIGN §4), vectorised.
+"""Curved constrained triangulation of the domain rectangle (docs/design.md §4), vectorised.
 
 Every line piece becomes exactly one mesh edge and every curved piece lies inside one triangle whose
 two corners are the piece's endpoints. The recipe:

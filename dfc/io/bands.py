@@ -1,4 +1,4 @@
-"""Out-of-core rasters: images read in bands of rows, never whole (DESIGN §10).
+"""Out-of-core rasters: images read in bands of rows, never whole (docs/design.md §10).
 
 A *band source* has ``width``, ``height``, ``channels`` (names) and ``rows(y0, y1) -> (y1 - y0, W, C) float32``,
 rows going down in y (``spec/conventions.md``). ``ExrBands`` reads an OpenEXR file that way, scanline or tiled and

@@ -1,4 +1,4 @@
-"""Tiled OpenEXR output written tile by tile, for renders too large to hold (DESIGN §10).
+"""Tiled OpenEXR output written tile by tile, for renders too large to hold (docs/design.md §10).
 
 ``ExrTileWriter`` writes a single-part tiled file (ONE_LEVEL, ZIP, tiles of ``tile × tile`` pixels, INCREASING_Y
 order: tiles row by row, left to right), from the OpenEXR file-layout specification as ``ExrBlockWriter`` writes

@@ -60,10 +60,9 @@ OFFSET_REL = 1e-3
 BOUNDARY_WEIGHT = 1e3
 """Weight ``w`` of the boundary term. A penalty leaves the field off its prescribed values by about the normal
 flux over ``w``, so ``w`` must be large against the energy (of order 1 to 10 in these units for the shipped
-scenes), but a stiffer penalty slows Adam down: on ``samples/diffusion_small.json`` (1000 steps, batch 4096,
-against the 256² reference) ``w = 1e3`` gave 35.9 dB and ``w = 1e4`` 31.9 dB."""
+scenes), but a stiffer penalty slows Adam down (1e4 against 1e3: docs/results.md, "Physics-informed solve")."""
 DFC_LR = 1e-2
-"""Adam's starting learning rate for dfc's features and MLP (DESIGN §6's, as for fitting images)."""
+"""Adam's starting learning rate for dfc's features and MLP (docs/design.md §6's, as for fitting images)."""
 FINAL_LR_FACTOR = 0.1
 """The learning rate decays geometrically to this fraction of its start."""
 QAT_SHARE = 0.1
@@ -72,8 +71,8 @@ POOL_CURVE_POINTS = 1 << 14
 """Curve points in the boundary pool (each gives one point per side)."""
 DEFAULT_STEPS = 1000
 DEFAULT_BATCH = 1 << 12
-"""Interior points (and boundary points) per step of ``dfc solve``: at 1024, dfc's energy estimate is noisier
-(34.4 dB instead of 35.9 on ``samples/diffusion_small.json`` at 1000 steps)."""
+"""Interior points (and boundary points) per step of ``dfc solve``; smaller batches make dfc's energy estimate
+noisier (1024 against 4096: docs/results.md, "Physics-informed solve")."""
 
 
 def _normals(cp: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,4 @@
-"""Out-of-core sampling of a raster read in bands of rows (DESIGN §10, the paper's §6.1 fit).
+"""Out-of-core sampling of a raster read in bands of rows (docs/design.md §10, the paper's §6.1 fit).
 
 The image is never held: a *band source* (``dfc.io.bands``) yields rows on demand. Three pieces:
 

@@ -1,8 +1,8 @@
-"""Data-parallel training on PyTorch's own engine (DESIGN §10): ``torch.distributed``, ``DistributedDataParallel``
-and ``torchrun``'s elastic launcher.
+"""Data-parallel training on PyTorch's own engine (docs/design.md §10): ``torch.distributed``,
+``DistributedDataParallel`` and ``torchrun``'s elastic launcher.
 
 A run of N ranks is N processes: started by ``torchrun --nproc-per-node N -m dfc encode …`` (any number of nodes,
-see the README), or by ``launch`` (``dfc encode --workers N``: the same elastic agent, local ranks, a free port).
+see docs/gigapixel.md), or by ``launch`` (``dfc encode --workers N``: the same elastic agent, local ranks, a free port).
 Each rank calls ``init`` (gloo on CPU ranks, NCCL on GPUs, one GPU per local rank), builds the same model from the
 same seed, reads and samples its own share of the bands, and trains through ``dfc.train.loop.train``, which wraps
 the model in ``DistributedDataParallel`` (``parallel``) so that every step all-reduces the gradients. The feature

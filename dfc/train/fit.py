@@ -1,6 +1,7 @@
-"""Fitting a field model to samples of a signal (DESIGN §6): the entry points ``fit_image``, ``fit_samples`` and
-``fit_frames`` wire a signal and a mesh into a fresh ``FieldModel`` trained by ``dfc.train.loop.train`` on a data
-sampler (``dfc.train.samplers``), with defaults measured on the sample scene. Deterministic on CPU for a given seed.
+"""Fitting a field model to samples of a signal (docs/design.md §6): the entry points ``fit_image``,
+``fit_samples`` and ``fit_frames`` wire a signal and a mesh into a fresh ``FieldModel`` trained by
+``dfc.train.loop.train`` on a data sampler (``dfc.train.samplers``), with defaults chosen by the measurements in
+CHANGELOG.md. Deterministic on CPU for a given seed.
 """
 
 from __future__ import annotations
@@ -28,17 +29,12 @@ __all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS",
 
 DECODER_LR = 0.2
 """Image fits (``fit_image``, ``fit_bands``) train the decoder at this factor on the features' learning rate
-(``dfc.train.loop.Schedule``). On ``samples/sample.exr`` under byte targets of 4, 16 and 32 KB it lifts the 1× PSNR
-(4 × 4 points per pixel, against the input) from 58.37 / 63.89 / 64.30 to 59.10 / 66.54 / 66.13 dB at the same 1000
-steps (3000 steps at the factor 1 give 66.95 at 32 KB); scaling the features' rate down instead does not (64.14).
-Sample sets keep 1: at 1000 walk-on-spheres steps the factor changes nothing (+0.1 dB), and a short fit (80 steps)
-loses 4 dB. Short image fits keep 1 too (``DECODER_LR_MIN_STEPS``)."""
+(``dfc.train.loop.Schedule``). Sample sets keep 1, as do image fits shorter than ``DECODER_LR_MIN_STEPS``. Why:
+CHANGELOG.md, "The decoder learns at a fifth of the features' rate"."""
 
 DECODER_LR_MIN_STEPS = 500
 """Image fits of fewer steps keep the decoder at the features' rate (``image_decoder_lr``): a slow decoder needs the
-steps — at 100 steps the README sample fitted out of core reached 27 dB instead of 30, and at 300 steps HDR test
-images lost saturated colours; a factor falling from 1 to 0.2 over the run, or 200 steps at 1 first, kept little of
-the gain at 1000 steps (63.74 and 64.68 dB at 32 KB)."""
+steps (CHANGELOG.md, "The decoder learns at a fifth of the features' rate")."""
 
 
 def image_decoder_lr(steps: int) -> float:
@@ -73,7 +69,7 @@ def fit(
     sampler : ``(step, generator) -> (xy (B, 2), target (B, C)[, extra])`` tensors on the model's device
         (``dfc.train.samplers``; ``extra`` as ``DataLoss`` takes it)
     steps : number of optimiser steps
-    lr, betas : Adam settings (DESIGN §6: 1e-2, (0.9, 0.99))
+    lr, betas : Adam settings (docs/design.md §6: 1e-2, (0.9, 0.99))
     loss : {"mse", "relmse", "logmse"}, see ``loss_value``
     seed : seeds the CPU generator handed to the sampler
     callback : called after each step as ``callback(step, loss, psnr)``; psnr is of the batch, in dB
@@ -98,12 +94,8 @@ def fit(
 DEFAULT_STEPS = 1000
 """Default optimiser steps of ``fit_samples`` and ``fit_frames`` (and the least of a sample-set encode)."""
 IMAGE_STEPS = 3000
-"""Default optimiser steps of the image fits (``fit_image``, ``fit_bands``). With the decoder at ``DECODER_LR`` 1,000
-steps left the fit short of its mesh: on ``samples/sample.exr`` under byte targets of 4 / 8 / 16 / 32 KB, 3,000
-steps lift the 1× PSNR without the pixels a curve crosses (4 × 4 points per pixel, against the input) from 59.6 /
-62.8 / 67.0 (seed 1: 66.3) / 66.5 to 64.3 / 66.8 / 66.5 (69.3) / 69.8 dB, and 5,000 give no more at 32 KB (69.9);
-``dfc benchmark rate shapes`` at 8 KB: unmixed 66.3 → 69.6, edges at 33× / 100× +3.9 / +2.5, smooth +2.9 dB. The
-fit takes three times as long (the README sample: about 1 minute more on one CPU thread)."""
+"""Default optimiser steps of the image fits (``fit_image``, ``fit_bands``; ``--steps``). Why 3,000 and not 1,000:
+CHANGELOG.md, "Image fits run 3,000 steps"; docs/results.md, "Image fits run 3,000 steps"."""
 DEFAULT_QAT_FRACTION = 0.1
 """Default share of the steps run quantisation-aware."""
 MAX_DROPPED_FRACTION = 0.5

@@ -1,4 +1,4 @@
-"""The training loop (DESIGN §6): every model dfc trains — fitted fields, the physics-informed solve and the
+"""The training loop (docs/design.md §6): every model dfc trains — fitted fields, the physics-informed solve and the
 baselines — goes through ``train``.
 
 ``train(model, loss, sampler, schedule)`` runs Adam on ``model``'s parameters: each step draws a batch from
@@ -27,7 +27,7 @@ from .distributed import parallel, rank_seed, world
 __all__ = ["BETAS", "Loss", "Sampler", "Schedule", "train"]
 
 BETAS = (0.9, 0.99)
-"""Adam's betas (DESIGN §6)."""
+"""Adam's betas (docs/design.md §6)."""
 
 Sampler = Callable[[int, torch.Generator], tuple]
 """``sampler(step, generator) -> batch``: the batch for global step ``step``, drawn with ``generator``."""

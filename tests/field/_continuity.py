@@ -1,4 +1,4 @@
-"""Numerical checks of the continuity theorem (paper Thm 4.3, DESIGN §5) on a mesh.
+"""Numerical checks of the continuity theorem (paper Thm 4.3, docs/design.md §5) on a mesh.
 
 The bank is filled with N(0, 1) values so that jumps are O(1). Two points ``2 EPS`` apart across
 a line are continuous when they differ by less than ``SMOOTH``, or when the difference shrinks in

@@ -131,9 +131,9 @@ class HashGrid(Baseline):
         The MLP keeps width ``hidden`` unless that would take more than ``MLP_SHARE`` of the budget; then
         it gets the widest width that fits that share (≥ ``MIN_HIDDEN``). ``finest_resolution`` defaults to
         the longer side of ``image`` in pixels, else of the domain in its own units. The output unit stays 1:
-        the MLP scales itself (on the ``hdr`` scene, 300 steps, a unit of the data's maximum gave 19.5 dB at
-        1× against 24.3 dB with unit 1). When even all-dense
-        levels fit, the model is smaller than the budget. Raises ValueError when the budget cannot hold the MLP.
+        the MLP scales itself (a unit of the data's maximum trains worse on HDR data: CHANGELOG.md, "Benchmark
+        settings"). When even all-dense levels fit, the model is smaller than the budget. Raises ValueError when
+        the budget cannot hold the MLP.
         """
         x0, y0, x1, y1 = (float(v) for v in domain)
         if finest_resolution is None:

@@ -43,11 +43,8 @@ def hdr_unit(image) -> float:
     ``base.value_scale`` — 1 for colours in [-1, 1], else the geometric mean of 1 and the largest magnitude.
 
     Adam moves each node by about the learning rate per step, in this unit: the data's maximum reaches bright values
-    within the 200 steps of a tuning candidate but cannot settle the dark ones (on the ``hdr`` scene, 84 at most,
-    32 KB, 3,000 steps: 20.2 dB tone-mapped at 1×, still rising 0.7 dB over the last tenth), a unit of 1 settles them
-    but starts far too slowly (5.9 dB after 200 steps, so a sweep never picks it). The geometric mean does both:
-    23.9 dB after 200 steps and 25.4 after 3,000 (after 3,000 at 4 / 16 KB: 19.9 / 23.9 against 18.5 / 21.3 dB with
-    the maximum).
+    within the 200 steps of a tuning candidate but cannot settle the dark ones, a unit of 1 settles them but starts
+    too slowly for a sweep to pick it; the geometric mean does both (CHANGELOG.md, "Benchmark settings").
     """
     return math.sqrt(value_scale(image))
 

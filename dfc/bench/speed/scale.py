@@ -1,5 +1,5 @@
 """``dfc benchmark scale``: a huge analytic render through encode and decode, with peak memory, time per stage and
-quality against the exact scene (DESIGN §10).
+quality against the exact scene (docs/design.md §10).
 
 Writes the ``stripes`` scene (``dfc.bench.scenes.Stripes``: ≥ 10k cubic pieces, exact at any zoom) as a
 ``--size``² half RGB EXR band by band, runs ``dfc encode`` on it in a child process (out of core; ``--workers``
