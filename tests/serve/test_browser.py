@@ -4,7 +4,7 @@ extra). Skips with one line where no browser is installed.
 Opens the side-by-side view of the shipped sample and its input raster, zooms to 100x (100 screen pixels per input
 pixel) on the triangle's edge and reads both viewers' canvases along a column across the edge: the file's edge
 crosses from one side's value to the other's within 2 screen pixels, the bicubic raster's over many. With
-``DFC_VIEWER_SCREENSHOT=PATH`` it also saves a screenshot of the page there (``docs/figures/viewer_100x.png``)."""
+``DFC_VIEWER_SCREENSHOT=PATH`` it also saves a screenshot of the page there (``docs/images/viewer_100x.png``)."""
 
 import os
 import re
