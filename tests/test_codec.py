@@ -272,7 +272,6 @@ def test_heldout_split_sizes():
 
 def test_small_images_get_a_mesh_and_decoder_sized_to_them(scene, one_thread):
     from dfc.geometry.curves import Curves
-    from dfc.geometry.sources import read_curves
 
     empty = Curves((0.0, 0.0, 1.0, 1.0), np.zeros((0, 4, 2)), [], [], np.zeros((0, 2)))
     blob, report = encode_image(np.full((1, 1, 3), 0.5, np.float32), empty, EncodeSettings(steps=5, batch_size=16))
