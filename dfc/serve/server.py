@@ -128,8 +128,9 @@ class App:
         self.static = _static_files()
 
     def close(self) -> None:
-        """Stop the render pool: queued renders are dropped, one in progress finishes."""
-        self.renders.shutdown(wait=False, cancel_futures=True)
+        """Stop the render pool: queued renders are dropped, one in progress finishes before this returns (no
+        render thread is left running torch while the interpreter exits)."""
+        self.renders.shutdown(wait=True, cancel_futures=True)
 
     def respond(self, target: str, accept: str = "", host: str = "") -> Response:
         """The response to a GET of ``target`` (path and query); ``accept`` and ``host``: the request's headers
