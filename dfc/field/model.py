@@ -28,14 +28,18 @@ import torch
 import torch.nn.functional as nnf
 from torch import Tensor, nn
 from torch.nn.utils import parametrize
+from torch.profiler import record_function
 
 from ..errors import DfcError, FormatError
 from .mlp import ACTIVATIONS, MLP, OneBlob
 from .quantize import MAX_FEATURE_BITS, FakeFp16, FakeQuantize, FakeQuantizeWeights, check_weight_bits
 
-__all__ = ["TRANSFORMS", "FieldModel"]
+__all__ = ["DECODE", "INTERPOLATE", "TRANSFORMS", "FieldModel"]
 
 TRANSFORMS = ("identity", "log")
+INTERPOLATE, DECODE = "dfc.interpolate", "dfc.decode"
+"""``torch.profiler`` labels of the forward pass's parts: the features at the points (point location included when
+no precomputed query is given) and the decoder (``dfc benchmark encode``)."""
 _CONFIG_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins", "transform", "channels", "n_slices", "times")
 
 
@@ -104,17 +108,19 @@ class FieldModel(nn.Module):
         return self._forward(xy, t, query)
 
     def _forward(self, xy: Tensor, t, query) -> Tensor:
-        if query is None:
-            F = self.features(xy, t)
-        elif self.field.bank.shape[0] != 1:
-            raise ValueError("a precomputed query needs a field with a single time slice")
-        else:
-            idx, w = query
-            F = nnf.embedding_bag(idx, self.field.bank[0], per_sample_weights=w, mode="sum")
-        F = F.to(torch.float32)
-        if self.encoding is not None:
-            F = torch.cat([F, self.encoding(xy)], dim=1)
-        y = self.decoder(F)
+        with record_function(INTERPOLATE):
+            if query is None:
+                F = self.features(xy, t)
+            elif self.field.bank.shape[0] != 1:
+                raise ValueError("a precomputed query needs a field with a single time slice")
+            else:
+                idx, w = query
+                F = nnf.embedding_bag(idx, self.field.bank[0], per_sample_weights=w, mode="sum")
+            F = F.to(torch.float32)
+        with record_function(DECODE):
+            if self.encoding is not None:
+                F = torch.cat([F, self.encoding(xy)], dim=1)
+            y = self.decoder(F)
         return torch.expm1(y) if self.transform == "log" else y
 
     def render(self, width: int, height: int, window=None, *, spp: int = 1, t=None, edge_spp: int = 0):

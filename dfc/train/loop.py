@@ -20,14 +20,18 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
+from torch.profiler import record_function
 
 from ..field.quantize import DEFAULT_FEATURE_BITS
 from .distributed import parallel, rank_seed, world
 
-__all__ = ["BETAS", "Loss", "Sampler", "Schedule", "train"]
+__all__ = ["BACKWARD", "BETAS", "FORWARD", "Loss", "OPTIMISER", "SAMPLE", "Sampler", "Schedule", "train"]
 
 BETAS = (0.9, 0.99)
 """Adam's betas (docs/design.md §6)."""
+SAMPLE, FORWARD, BACKWARD, OPTIMISER = "dfc.sample", "dfc.forward", "dfc.backward", "dfc.optimiser"
+"""``torch.profiler`` labels of a step's parts: drawing the batch, the loss's forward pass, its backward pass and the
+optimiser step (``dfc benchmark encode`` breaks steps down by them; free when no profiler runs)."""
 
 Sampler = Callable[[int, torch.Generator], tuple]
 """``sampler(step, generator) -> batch``: the batch for global step ``step``, drawn with ``generator``."""
@@ -119,10 +123,15 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
                 net = parallel(model, sync=False)
             for group in optimizer.param_groups:
                 group["lr"] = group["factor"] * schedule.lr * decay ** (step - start)
-            value, metrics = loss(net, sampler(step, generator))
+            with record_function(SAMPLE):
+                batch = sampler(step, generator)
+            with record_function(FORWARD):
+                value, metrics = loss(net, batch)
             optimizer.zero_grad(set_to_none=True)
-            value.backward()
-            optimizer.step()
+            with record_function(BACKWARD):
+                value.backward()
+            with record_function(OPTIMISER):
+                optimizer.step()
             for name, v in metrics.items():
                 history.setdefault(name, []).append(v.detach())
             if callback is not None:
