@@ -81,7 +81,9 @@ class EncodeSettings:
     (None: sized to memory) and ``workers`` (ranks, recorded). Storage (spec/dfield.md): ``feature_bits`` (None:
     ``DEFAULT_FEATURE_BITS``, or the first of ``dfc.rate.FEATURE_BITS_FALLBACK`` whose smallest file fits a byte
     target too small for it), ``feature_coding`` ("predicted": ``FEAC``, "plain": the 1.0 ``FEAT``), ``weight_bits``
-    (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``.
+    (integer weight matrices in ``MLPQ``; None: float16 ``MLPW``), ``mesh_bits``. Images read whole:
+    ``pixel_filter``, the filter that made the pixels (``dfc.pixel_filter`` spec, or "auto": ``dfc.pixel_model``),
+    fitted and stored in the header.
     """
 
     max_triangles: int | None = None
@@ -107,6 +109,7 @@ class EncodeSettings:
     device: str = "cpu"
     epoch_pixels: int | None = None
     workers: int = 1
+    pixel_filter: str = "auto"
 
 
 @dataclass
@@ -116,7 +119,8 @@ class EncodeReport:
     ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``psnr_reference``:
     against the exact values given as ``reference``, on the same scale (sample sets), else None. ``target_psnr``: the
     PSNR the encode aimed at (``EncodeSettings.target_psnr``, or ``FEM_TARGET_PSNR`` by default for a FEM solution),
-    else None. ``feature_bits``: the bits the features were stored with."""
+    else None. ``feature_bits``: the bits the features were stored with. ``pixel_filter``: the filter an image read
+    whole was fitted and stored with, and ``pixel_evidence`` why ``auto`` chose it (``Detection.evidence``)."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -132,6 +136,8 @@ class EncodeReport:
     psnr_reference: float | None = None
     target_psnr: float | None = None
     feature_bits: int = DEFAULT_FEATURE_BITS
+    pixel_filter: str | None = None
+    pixel_evidence: str | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -178,13 +184,15 @@ def storage(settings) -> dict:
             "weight_bits": settings.weight_bits}
 
 
-def encode_model(model, settings, info: dict | None = None, pixel_size=None) -> tuple[bytes, dict[str, int]]:
+def encode_model(model, settings, info: dict | None = None, pixel_size=None,
+                 pixel_filter: str | None = None) -> tuple[bytes, dict[str, int]]:
     """(``.dfield`` bytes, bytes per chunk) of ``model`` written with ``settings``' storage, the header's ``encoder``
-    record ``info`` and ``pixel_size``. The mesh was validated once, when rate control built it
+    record ``info``, ``pixel_size`` and ``pixel_filter``. The mesh was validated once, when rate control built it
     (``dfc.rate.build_mesh``), and its bytes decode to it exactly: it is not validated again."""
     from .io.container import encode_dfield
 
-    return encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True, **storage(settings))
+    return encode_dfield(to_contents(model, info, pixel_size=pixel_size, pixel_filter=pixel_filter),
+                         mesh_validated=True, **storage(settings))
 
 
 def encoder_info(settings, source: str, extra: dict) -> dict:
@@ -240,17 +248,20 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     curves_info : where the curves came from, stored in the file's encoder info under ``curves`` (``dfc encode
         --curves auto``: extracted from the image, with the extractor's settings)
 
+    The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
+    is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).
+
     Returns
     -------
     (blob, report): the ``.dfield`` bytes and an ``EncodeReport`` whose ``psnr`` is of ``blob`` decoded and
-    rendered as ``dfc decode`` renders it at the input's size (at the pixel centres, the pixels a curve crosses
-    averaged over ``dfc.render.EDGE_SPP`` points), against the input (tone-mapped for HDR input,
-    ``report.tonemapped``).
+    rendered as ``dfc decode`` renders it at the input's size (the pixels a curve changes filtered with the stored
+    filter, the others at their centres), against the input (tone-mapped for HDR input, ``report.tonemapped``).
     """
     from .geometry.pixels import edge_pixels
     from .io.image import check_pixels
     from .io.samples import default_channels
-    from .render import EDGE_SPP, default_edge_spp, render, window_points
+    from .pixel_model import resolve
+    from .render import render, window_points
     from .train.fit import fit_image
 
     settings = _with_steps(settings or EncodeSettings(), "image")
@@ -260,28 +271,37 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     curves = check_domain(curves, w, h, fit_curves)
     scale = quality_scale(pixels)
     clock = time.perf_counter()
+    pixel_filter, detection = resolve(settings.pixel_filter, pixels, curves)
+    detect_s = time.perf_counter() - clock
+    clock = time.perf_counter()
     settings, mesh = image_mesh_size(curves, settings, w * h)  # small images: a mesh and decoder sized to them
     sizing_s = time.perf_counter() - clock
     settings = replace(_image_decoder(settings, pixels.size, c), refine=refine_rounds(settings))
 
-    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not): refinement
+    def residual(m):  # squared error at the pixel centres (those a curve changes left out): refinement
         centres = window_points(curves.domain, w, h)
         err = _error(m, centres, pixels.reshape(-1, c), settings)
-        err[edge_pixels(m.field.mesh, h, w).ravel()] = 0.0
+        err[pixel_filter.filtered(edge_pixels(m.field.mesh, h, w)).ravel()] = 0.0
         return centres, err
 
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
                                                   "hdr": float(pixels.max()) > 1.0,
-                                                  **({"curves": curves_info} if curves_info else {})})
+                                                  **({"curves": curves_info} if curves_info else {}),
+                                                  **({"pixel_model": detection.to_dict()} if detection else {})})
+    stored = str(pixel_filter)
     model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, mesh=mesh,
                                    residual=residual, min_area=0.25,
-                                   size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0))[0]),
-                                   quality=lambda m: scale.psnr(pixels, render(m, w, h, edge_spp=EDGE_SPP)),
-                                   data_range=scale.data_range, tonemap=scale.tonemap)
+                                   size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0), stored)[0]),
+                                   quality=lambda m: scale.psnr(pixels, render(m, w, h, pixel_filter=pixel_filter)),
+                                   data_range=scale.data_range, tonemap=scale.tonemap, pixel_filter=pixel_filter)
     seconds["mesh_s"] += sizing_s
-    return _finish(model, settings, info, seconds, w * h,
-                   lambda m: (pixels, render(m, w, h, edge_spp=default_edge_spp(m, w, h))), scale,
-                   pixel_size=(1.0, 1.0))
+    seconds = {"detect_s": detect_s, **seconds}
+    blob, report = _finish(model, settings, info, seconds, w * h,
+                           lambda m: (pixels, render(m, w, h, pixel_filter=pixel_filter)), scale,
+                           pixel_size=(1.0, 1.0), pixel_filter=stored)
+    report.pixel_filter = stored
+    report.pixel_evidence = detection.evidence() if detection else None
+    return blob, report
 
 
 @_feature_bits
@@ -305,6 +325,7 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     from .train.bands import HeldOut, scan
     from .train.fit import MAX_DROPPED_FRACTION, fit_bands
 
+    _no_pixel_filter(settings, "an image read in bands (out of core)")
     settings = _with_steps(settings or EncodeSettings(), "image")
     rank, world = distributed.world()
     h, w = source.height, source.width
@@ -383,6 +404,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     from .train.fit import fit_samples
 
     settings = settings or EncodeSettings()
+    _no_pixel_filter(settings, "a sample set")
     domain = getattr(samples, "domain", None)
     if domain is not None and not np.allclose(domain, curves.domain, rtol=1e-9, atol=0):
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
@@ -438,6 +460,13 @@ def default_steps(kind: str, n_samples: int = 0, batch_size: int = 1 << 14) -> i
     return sample_steps(n_samples, batch_size) if kind == "samples" else DEFAULT_STEPS
 
 
+def _no_pixel_filter(settings, kind: str) -> None:
+    """Raise ``InputError`` when ``settings`` name a pixel filter for an input ``kind`` that has no pixels to filter
+    or is not fitted with one (only images read whole are)."""
+    if getattr(settings, "pixel_filter", "auto") != "auto":
+        raise InputError(f"a pixel filter applies to an image read whole, not to {kind}")
+
+
 def _with_steps(settings: EncodeSettings, kind: str, n_samples: int = 0) -> EncodeSettings:
     """``settings`` with ``steps`` set to ``default_steps`` when None."""
     if settings.steps is not None:
@@ -474,6 +503,7 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     from .physics.fem import fem_curves, node_points, sample_fem
     from .train.fit import fit_samples
 
+    _no_pixel_filter(settings, "a FEM solution")
     settings, fit_kw = _physical(_with_steps(fem_settings(settings or EncodeSettings()), "fem"))
     settings = replace(settings, refine=refine_rounds(settings))
     curves = fem_curves(solution, curves)
@@ -512,6 +542,7 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     from .render import default_edge_spp, render
     from .train.fit import fit_frames
 
+    _no_pixel_filter(settings, "a frame sequence")
     sequence = check_frames(sequence)
     frames = sequence.frames
     t, h, w, c = frames.shape
@@ -604,11 +635,12 @@ def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) 
 
 
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
-            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], scale: QualityScale, pixel_size=None):
+            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], scale: QualityScale, pixel_size=None,
+            pixel_filter: str | None = None):
     """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth`` on ``scale``
-    (``pixel_size``: of a raster input, for the header)."""
+    (``pixel_size``, ``pixel_filter``: of a raster input, for the header)."""
     clock = time.perf_counter()
-    blob, sizes = encode_model(model, settings, info, pixel_size)
+    blob, sizes = encode_model(model, settings, info, pixel_size, pixel_filter)
     decoded = loads(blob, device=settings.device, validate_mesh=False)
     seconds["write_s"] = time.perf_counter() - clock
     clock = time.perf_counter()

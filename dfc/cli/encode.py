@@ -114,6 +114,10 @@ def _curves_arg(ctx, param, value):
 @click.option("--loss", type=click.Choice(["auto", "mse", "relmse", "logmse"]), default="auto", show_default=True,
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds features, decoder and sampling.")
+@click.option("--pixel-filter", "pixel_filter", metavar="FILTER",
+              help="Image: how its pixels were made from the scene: auto, point, box[:N], gaussian[:STDDEV], tent, "
+                   "blackman-harris[:WIDTH] or mitchell; fitted and stored for the decoder  [default: auto, found in "
+                   "the pixels near the curves].")
 @click.option("--device", default="cpu", show_default=True, help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
 @click.option("--channels", help="Comma-separated image channels to encode (default: R,G,B[,A] or all).")
@@ -136,8 +140,8 @@ def _curves_arg(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, max_triangles, max_area, edge_length, target_bytes, target_psnr, steps,
-            batch_size, dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, device, channels,
-            fit_curves_to_image, times, fields, fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
+            batch_size, dim, feature_bits, mesh_bits, weight_bits, feature_coding, refine, loss, seed, pixel_filter,
+            device, channels, fit_curves_to_image, times, fields, fem_sampling, reference_path, epoch_pixels, workers, json_path, quiet):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
     sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
@@ -176,6 +180,16 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
             raise click.UsageError("--fields and --fem-sampling apply to FEM input")
         if kind != "samples" and reference_path:
             raise click.UsageError(f"--reference applies to sample sets, not {kind} input")
+        if pixel_filter is not None and kind != "image":
+            raise click.UsageError(f"--pixel-filter applies to images, not {kind} input")
+        if pixel_filter is not None and pixel_filter.strip().lower() != "auto":
+            from ..errors import InputError
+            from ..pixel_filter import parse
+
+            try:
+                pixel_filter = str(parse(pixel_filter))
+            except InputError as e:
+                raise click.BadParameter(str(e), param_hint="'--pixel-filter'") from None
         if curves_path == "auto" and kind != "image":
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         settings = EncodeSettings(max_triangles=max_triangles, max_area=max_area, edge_length=edge_length,
@@ -183,7 +197,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
                                   batch_size=batch_size, dim=dim, feature_bits=feature_bits,
                                   mesh_bits=mesh_bits, weight_bits=weight_bits or None, feature_coding=feature_coding,
                                   refine=refine, loss=loss, seed=seed, device=check_device(device),
-                                  epoch_pixels=epoch_pixels, workers=workers)
+                                  epoch_pixels=epoch_pixels, workers=workers, pixel_filter=pixel_filter or "auto")
         if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
             raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
                                      param_hint="'--workers'")
@@ -195,6 +209,9 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
                 raise click.UsageError(f"{name} applies to an image read whole (not out of core: --epoch-pixels, "
                                        "--workers, torchrun, EXR above 4096x4096)" if kind == "image" else
                                        f"{name} applies to image or FEM input, not {kind}")
+        if pixel_filter is not None and out_of_core:
+            raise click.UsageError("--pixel-filter applies to an image read whole, not out of core (--epoch-pixels, "
+                                   "--workers, torchrun, EXR above 4096x4096)")
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
@@ -290,6 +307,9 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
         lines.append(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB ({scale})")
     if report.target_psnr is not None:
         lines[-1] += f"; target {report.target_psnr:g} dB"
+    if report.pixel_filter is not None:
+        lines.append(f"pixel filter: {report.pixel_filter} (" + (f"auto: {report.pixel_evidence}" if
+                     report.pixel_evidence else "as given") + "; stored for the decoder)")
     if report.psnr_reference is not None:
         lines.append(f"PSNR of the decoded file against the reference {reference_path}: {report.psnr_reference:.2f} dB "
                      f"({scale})")

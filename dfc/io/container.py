@@ -127,8 +127,21 @@ def _check_header(h, S: int) -> None:
     if size is not None and not (isinstance(size, list) and len(size) == 2 and all(_is_number(v) and v > 0
                                                                                   for v in size)):
         raise FormatError("HEAD: pixel_size must be null or two positive finite numbers")
+    if "pixel_filter" in h:
+        _check_pixel_filter(h["pixel_filter"])
     if not isinstance(h["model"], dict) or not isinstance(h.get("encoder", {}), dict):
         raise FormatError("HEAD: model and encoder must be objects")
+
+
+def _check_pixel_filter(spec) -> None:
+    """Spec §5: ``pixel_filter`` is a filter spec string (``dfc.pixel_filter.parse``)."""
+    from ..errors import InputError
+    from ..pixel_filter import parse
+
+    try:
+        parse(spec)
+    except InputError as e:
+        raise FormatError(f"HEAD: pixel_filter: {e}") from None
 
 
 def _is_number(v) -> bool:

@@ -20,12 +20,14 @@ _ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
 
 
 def to_contents(model: FieldModel, encoder: dict | None = None, *,
-                pixel_size: tuple[float, float] | None = None) -> DfieldContents:
+                pixel_size: tuple[float, float] | None = None, pixel_filter: str | None = None) -> DfieldContents:
     """The ``.dfield`` contents of a fitted ``FieldModel`` (quantised values when its quantised mode is on).
 
     encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
     pixel_size : (width, height) in domain units of a pixel of the raster the model was fitted to (header
         ``pixel_size``: decoders anti-alias at or below that resolution); None for other inputs
+    pixel_filter : spec string of the filter that made that raster's pixels (header ``pixel_filter``,
+        ``dfc.pixel_filter``); None: not stored
     """
     config = model.config()
     header = {
@@ -38,6 +40,8 @@ def to_contents(model: FieldModel, encoder: dict | None = None, *,
     }
     if pixel_size is not None:
         header["pixel_size"] = [float(v) for v in pixel_size]
+    if pixel_filter is not None:
+        header["pixel_filter"] = str(pixel_filter)
     with torch.no_grad():
         features = model.field.bank.detach().cpu().numpy().astype(np.float32)
         mlp = {}

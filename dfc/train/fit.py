@@ -17,6 +17,7 @@ from ..field.quantize import DEFAULT_FEATURE_BITS
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
 from ..metrics import quality_scale
+from ..pixel_filter import TRAIN_POINTS
 from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss, auto_loss
 from .samplers import frame_sampler, image_sampler, point_sampler
@@ -134,6 +135,7 @@ def fit_image(
     init: FieldModel | None = None,
     exclude: np.ndarray | None = None,
     tonemap: bool | None = None,
+    pixel_filter=None,
     **model_kw,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster covering ``mesh.domain``.
@@ -163,6 +165,9 @@ def fit_image(
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at every pixel centre) instead of from scratch
     exclude : optional (H, W) bool, pixels never trained on besides the mixed ones (held out to measure the fit)
+    pixel_filter : the ``dfc.pixel_filter.PixelFilter`` that made the pixels: each pixel is then compared with the
+        field filtered by it there (``dfc.train.pixel_sampler``; every pixel is trained, ``mixed_pixels`` is
+        ignored); None: point samples jittered in each pixel, mixed pixels as ``mixed_pixels`` says
     **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform; the transform
         defaults to "log" for HDR images whose values are all > -1, else "identity")
 
@@ -183,6 +188,8 @@ def fit_image(
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
     held_out = exclude
+    if pixel_filter is not None:
+        mixed_pixels = "keep"
     exclude = edge_pixels(mesh, *pixels.shape[:2]) if mixed_pixels == "drop" else None
     if exclude is not None and exclude.mean() > MAX_DROPPED_FRACTION:
         exclude = None
@@ -195,10 +202,21 @@ def fit_image(
         carry_over(init, model, window_points(mesh.domain, pixels.shape[1], pixels.shape[0]))
     n = pixels.shape[0] * pixels.shape[1]
     cached = n <= MAX_CACHED_SAMPLES
-    sampler = image_sampler(
-        pixels, mesh.domain, batch_size, device=device, query=field.query if cached else None,
-        jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=seed, exclude=exclude,
-    )
+    if pixel_filter is not None:
+        from .pixel_sampler import filtered_sampler
+
+        if held_out is not None:
+            raise ValueError("exclude is not supported with a pixel filter")
+        filtered = pixel_filter.filtered(edge_pixels(mesh, *pixels.shape[:2]))
+        points = n + (TRAIN_POINTS - 1) * int(filtered.sum())
+        sampler = filtered_sampler(pixels, mesh.domain, batch_size, pixel_filter, filtered, device=device,
+                                   query=field.query if points <= MAX_CACHED_SAMPLES else None,
+                                   sets=max(1, min(8, MAX_CACHED_SAMPLES // points)), seed=seed)
+    else:
+        sampler = image_sampler(
+            pixels, mesh.domain, batch_size, device=device, query=field.query if cached else None,
+            jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=seed, exclude=exclude,
+        )
     fit(model, sampler, lr=lr, final_lr=final_lr, seed=seed, callback=callback, feature_bits=feature_bits,
         weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
