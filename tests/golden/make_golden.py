@@ -1,13 +1,15 @@
 """Regenerate the golden files: ``python tests/golden/make_golden.py`` (from the repository root).
 
-valid/tiny.dfield is a file of version 1.0 (FEAT, MLPW) and stays as it was written: it proves that old files keep
-decoding, so this script only reads it (and writes it, from the 1.0 chunk encodings, when it is missing).
-valid/tiny_coded.dfield holds the same contents with the 1.1 chunks (FEAC, MLPQ). Each valid file has a .json with
+valid/tiny.dfield is a file of version 1.0 (FEAT, MLPW) and valid/tiny_coded.dfield one of version 1.1 with the same
+contents in the 1.1 chunks (FEAC, MLPQ); both stay as they were written: they prove that old files keep decoding, so
+this script only reads them (and writes them when missing). valid/tiny_filter.dfield adds the
+1.2 header keys pixel_size and pixel_filter. Each valid file has a .json with
 the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
 a deliberate format change (update the spec's change log)."""
 
 import json
 import struct
+from dataclasses import replace
 import sys
 from pathlib import Path
 
@@ -28,6 +30,7 @@ def _write_valid(name: str, blob: bytes) -> None:
     (HERE / "valid" / f"{name}.json").write_text(json.dumps({
         "vertices": decoded.mesh.n_vertices, "features_shape": list(decoded.features.shape),
         "features_sum": float(np.asarray(decoded.features, np.float64).sum()),
+        **({"pixel_filter": decoded.header["pixel_filter"]} if "pixel_filter" in decoded.header else {}),
     }, indent=1) + "\n")
 
 
@@ -37,8 +40,17 @@ def main():
     if not frozen.exists():
         _write_valid("tiny", encode_dfield(c, compression_level=19, feature_coding="plain")[0])
     blob = frozen.read_bytes()
-    coded, _ = encode_dfield(c, compression_level=19, feature_coding="predicted", weight_bits=6)
-    _write_valid("tiny_coded", coded)
+    frozen_coded = HERE / "valid" / "tiny_coded.dfield"  # content 1.1: kept as written, like tiny (1.0)
+    if not frozen_coded.exists():
+        _write_valid("tiny_coded", encode_dfield(c, compression_level=19, feature_coding="predicted", weight_bits=6)[0])
+    coded = frozen_coded.read_bytes()
+    x0, y0, x1, y1 = c.header["domain"]
+    filtered = replace(c, header={**c.header, "pixel_size": [(x1 - x0) / 16, (y1 - y0) / 16],
+                                  "pixel_filter": "gaussian:0.5"})
+    _write_valid("tiny_filter", encode_dfield(filtered, compression_level=19, weight_bits=6)[0])
+    unknown = [list(x) for x in split(coded)]
+    head = {**decode_dfield(coded).header, "pixel_filter": "lanczos"}
+    unknown[0][1] = compress(json.dumps(head, separators=(",", ":")).encode(), 19)
     ch = split(blob)
     cc = split(coded)
     mlpq = cc[4][1]
@@ -64,6 +76,7 @@ def main():
         "length_past_end": blob[:16] + struct.pack("<I", 0xFFFFFFF0) + blob[20:],
         "feat_and_feac": join(cc[:4] + [ch[3]] + cc[4:]),
         "mlpq_integer_out_of_range": join(out_of_range),
+        "pixel_filter_unknown": join(unknown),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)
