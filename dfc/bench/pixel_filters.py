@@ -88,38 +88,53 @@ def filtered_raster(scene: AnalyticScene, width: int, height: int, pixel_filter:
     return out.astype(np.float32)
 
 
-def pixel_filter_table(size: int = 128, steps: int = 600, target_bytes: int | None = None, progress=None) -> dict:
-    """The benchmark: for each of ``GENERATIONS`` a ``size``² raster of ``polygon_scene``, encoded at
-    ``target_bytes`` (None: the default rate of the first encode, then that file's bytes for the others) for
-    ``steps`` steps assuming each of ``ASSUMED``. Returns {"rows": [{generation, assumed, chosen, bytes, psnr_1x,
-    psnr_zoom}], "size", "steps", "zoom", "window"}; ``progress(line)`` after each encode."""
+def pixel_filter_table(size: int = 96, steps: int = 300, target_bytes: int = 8000, progress=None) -> dict:
+    """The benchmark: for each of ``GENERATIONS`` a ``size``² raster of ``polygon_scene``, encoded for ``steps``
+    steps under ``target_bytes`` (no refinement round) assuming each of ``ASSUMED``; then the point-sampled raster at
+    the default rate assuming ``point`` and ``box``. Returns {"rows": [{generation, assumed, chosen, bytes, psnr_1x,
+    psnr_zoom}], "default_rate": [{assumed, bytes, psnr_1x}], "size", "steps", "target_bytes", "zoom", "probes"};
+    ``progress(row)`` after each encode. ``psnr_zoom``: the ``ZOOM``× windows centred on the middle of each polygon's
+    middle edge, ``WINDOW``² pixels at their centres (``dfc decode``'s default rule: point samples), against the
+    exact scene there, one PSNR over all windows."""
     from ..codec import EncodeSettings, encode_image, loads
     from ..metrics import psnr
     from ..render import render, zoom_window
     from .scenes import curve_probes
 
     scene = polygon_scene(float(size))
-    centre = curve_probes(scene.curves, 1)[0]
-    window = zoom_window(scene.domain, centre, ZOOM, inside=False)
-    zw = 128
-    xs = window[0] + (np.arange(zw) + 0.5) * (window[2] - window[0]) / zw
-    ys = window[1] + (np.arange(zw) + 0.5) * (window[3] - window[1]) / zw
-    X, Y = np.meshgrid(xs, ys)
-    exact = scene.value(np.stack([X.ravel(), Y.ravel()], axis=1)).reshape(zw, zw, -1)
-    rows = []
+    probes = curve_probes(scene.curves, len(scene.curves.names))
+    windows = [zoom_window(scene.domain, p, ZOOM, inside=False) for p in probes]
+    exact = np.concatenate([_window_values(scene, w) for w in windows])
+    rows, default_rate = [], []
     for gen in GENERATIONS:
         raster = filtered_raster(scene, size, size, gen)
         for assumed in ASSUMED:
-            settings = EncodeSettings(steps=steps, target_bytes=target_bytes)
-            blob, report = encode_image(raster, scene.curves, settings, pixel_filter=assumed)
-            if target_bytes is None:
-                target_bytes = report.total_bytes
+            settings = EncodeSettings(steps=steps, target_bytes=target_bytes, refine=0, pixel_filter=assumed)
+            blob, report = encode_image(raster, scene.curves, settings)
             model = loads(blob)
-            zoomed = render(model, zw, zw, window)
-            row = {"generation": gen, "assumed": assumed, "chosen": model.header.get("pixel_filter"),
-                   "bytes": report.total_bytes, "psnr_1x": report.psnr,
-                   "psnr_zoom": psnr(exact, zoomed, 1.0)}
-            rows.append(row)
+            zoomed = np.concatenate([render(model, WINDOW, WINDOW, w) for w in windows])
+            rows.append({"generation": gen, "assumed": assumed, "chosen": report.pixel_filter,
+                         "bytes": report.total_bytes, "psnr_1x": report.psnr, "psnr_zoom": psnr(exact, zoomed, 1.0)})
             if progress is not None:
-                progress(row)
-    return {"rows": rows, "size": size, "steps": steps, "zoom": ZOOM, "window": list(window)}
+                progress(rows[-1])
+    raster = filtered_raster(scene, size, size, "point")
+    for assumed in ("point", "box"):
+        _, report = encode_image(raster, scene.curves, EncodeSettings(steps=steps, pixel_filter=assumed))
+        default_rate.append({"assumed": assumed, "bytes": report.total_bytes, "psnr_1x": report.psnr})
+        if progress is not None:
+            progress({"generation": "point", "assumed": assumed, "default_rate": True, **default_rate[-1]})
+    return {"rows": rows, "default_rate": default_rate, "size": size, "steps": steps, "target_bytes": target_bytes,
+            "zoom": ZOOM, "probes": probes.tolist()}
+
+
+WINDOW = 128
+"""Pixels per side of a zoom window's render."""
+
+
+def _window_values(scene: AnalyticScene, window) -> np.ndarray:
+    """(WINDOW, WINDOW, C) exact values at the pixel centres of a ``WINDOW``² render of ``window``."""
+    x0, y0, x1, y1 = window
+    xs = x0 + (np.arange(WINDOW) + 0.5) * (x1 - x0) / WINDOW
+    ys = y0 + (np.arange(WINDOW) + 0.5) * (y1 - y0) / WINDOW
+    X, Y = np.meshgrid(xs, ys)
+    return scene.value(np.stack([X.ravel(), Y.ravel()], axis=1)).reshape(WINDOW, WINDOW, -1)
