@@ -185,3 +185,15 @@ def test_cli_pixel_filter_errors(tmp_path, capsys, scene, rasters):
     assert_one_line_error(code, err, "takes no parameter")
     code, stdout, err = run(["zoom", out, "--center", "20,20", "--zoom", "4", "-o", tmp_path / "z.exr"], capsys)
     assert code == 0 and "pixel filter point (enlarging" in stdout + err
+
+
+def test_mitsuba_filters_state_their_kernel():
+    from dfc.io.mitsuba import rfilter_plugin, rfilter_spec
+
+    assert rfilter_plugin("box") == {"type": "box"}
+    assert rfilter_plugin("gaussian") == {"type": "gaussian", "stddev": 0.5}
+    assert rfilter_spec(rfilter_plugin("gaussian:0.8")) == "gaussian:0.8"
+    assert rfilter_spec({"type": "lanczos"}) == "unknown"
+    for spec in ("point", "box:4", "blackman-harris"):
+        with pytest.raises(InputError):
+            rfilter_plugin(spec)
