@@ -58,9 +58,10 @@ class Detection:
         best = ", ".join(f"{k} {100 * v:.2f} %" for k, v in list(self.misfit.items())[:top])
         return f"misfit on {self.pixels} edge pixels: {best}"
 
-    def to_dict(self) -> dict:
+    def to_dict(self, top: int = 3) -> dict:
+        """The record a file's encoder info keeps: the choice, the pixel count and the ``top`` best misfits."""
         return {"filter": str(self.filter), "pixels": self.pixels,
-                "misfit": {k: round(v, 6) for k, v in self.misfit.items()}}
+                "misfit": {k: round(v, 5) for k, v in list(self.misfit.items())[:top]}}
 
 
 def resolve(spec: str, pixels: np.ndarray, curves) -> tuple[PixelFilter, Detection | None]:
