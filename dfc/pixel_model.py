@@ -32,6 +32,11 @@ STRAIGHT = 0.25
 """Largest deviation (px) of the curve from its tangent within ``SIDE_FAR`` px of the foot point."""
 MIN_JUMP = 0.05
 """Smallest jump, as a share of the image's value range, of a profile that counts."""
+KEEP = 0.9
+"""Share of the profile pixels a candidate's misfit is measured on (its best fitted ones). On the README sample's
+scene (box, 4 x 4 sub-samples) all of them gave ``box`` (2.39 % misfit) over ``box:4`` (3.66 %): a few pixels near
+the stroke's fading tips weigh more than the filter; without the worst tenth ``box:4`` wins (0.008 % against
+0.30 %), at 64² with 2 x 2 sub-samples too (``box:2``)."""
 MIN_PIXELS = 20
 """Fewer clean pixels than this: no evidence; ``detect`` falls back to ``FALLBACK``."""
 FALLBACK = "box"
@@ -44,8 +49,8 @@ _POINTS = 4096
 
 @dataclass
 class Detection:
-    """The outcome of ``detect``: ``filter`` chosen; ``misfit`` RMS misfit per candidate spec (share of the jump),
-    best first; ``pixels`` clean profile pixels measured (0: no evidence, ``filter`` is ``FALLBACK``)."""
+    """The outcome of ``detect``: ``filter`` chosen; ``misfit`` RMS misfit per candidate spec (share of the jump, over
+    its best ``KEEP`` of the pixels), best first; ``pixels`` clean profile pixels measured (0: no evidence, ``filter`` is ``FALLBACK``)."""
 
     filter: PixelFilter
     misfit: dict[str, float] = field(default_factory=dict)
@@ -85,7 +90,8 @@ def detect(pixels: np.ndarray, curves, candidates=CANDIDATES) -> Detection:
     misfit = {}
     for spec in candidates:
         share = step_share(parse(spec), d, normal)
-        misfit[spec] = float(np.sqrt(np.sum((value - side_b - jump * share) ** 2) / np.sum(jump**2)))
+        error = np.sort(((value - side_b - jump * share) / jump) ** 2)
+        misfit[spec] = float(np.sqrt(np.mean(error[:max(1, int(KEEP * len(error)))])))
     ranked = dict(sorted(misfit.items(), key=lambda kv: kv[1]))
     return Detection(parse(next(iter(ranked))), ranked, len(d))
 

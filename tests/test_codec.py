@@ -106,7 +106,8 @@ def test_encode_reports_what_the_file_decodes_to(small_encode):
     image, blob, report = small_encode
     model = loads(blob)
     assert model.header["pixel_size"] == [1.0, 1.0] and default_edge_spp(model, 64, 64) == EDGE_SPP
-    err = np.mean((render(model, 64, 64, edge_spp=EDGE_SPP).astype(np.float64) - image) ** 2)
+    assert model.header["pixel_filter"] == report.pixel_filter == "box:2"  # the raster's 2 x 2 sub-samples, found
+    err = np.mean((render(model, 64, 64, pixel_filter="box:2").astype(np.float64) - image) ** 2)
     assert report.psnr == pytest.approx(10 * np.log10(1.0 / err), abs=1e-6)
     assert report.total_bytes == len(blob)
     assert sum(report.chunk_bytes.values()) + 16 == len(blob)
@@ -130,7 +131,7 @@ def test_refinement_splits_where_the_error_is_and_reports_the_refined_file(scene
     model, coarse = loads(refined_blob), loads(blob)
     assert coarse.field.mesh.n_triangles < refined.n_triangles == model.field.mesh.n_triangles
     assert refined.n_triangles <= coarse.field.mesh.n_triangles * (1 + 3 * settings.refine_fraction)
-    err = np.mean((render(model, 64, 64, edge_spp=EDGE_SPP).astype(np.float64) - image) ** 2)
+    err = np.mean((render(model, 64, 64, pixel_filter=model.header["pixel_filter"]).astype(np.float64) - image) ** 2)
     assert refined.psnr == pytest.approx(10 * np.log10(1.0 / err), abs=1e-6)
     assert refined.psnr > report.psnr  # 60 more steps on a finer mesh, started from the first fit
     assert "refine_s" in refined.seconds
@@ -203,7 +204,7 @@ def test_hdr_report_is_tone_mapped_and_the_progress_agrees(scene, one_thread):
     assert report.tonemapped and report.data_range == 1.0
     model = loads(blob)  # measured as dfc decode renders it at the input's size: anti-aliased
     assert default_edge_spp(model, 48, 48) == EDGE_SPP
-    decoded = render(model, 48, 48, edge_spp=EDGE_SPP).astype(np.float64)
+    decoded = render(model, 48, 48, pixel_filter=model.header["pixel_filter"]).astype(np.float64)
     tm = image / (1 + image), np.maximum(decoded, 0) / (1 + np.maximum(decoded, 0))
     assert report.psnr == pytest.approx(10 * np.log10(1.0 / np.mean((tm[0] - tm[1]) ** 2)), abs=1e-6)
     assert report.psnr == pytest.approx(QualityScale(1.0, tonemap=True).psnr(image, decoded), abs=1e-9)
