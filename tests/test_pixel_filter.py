@@ -10,7 +10,7 @@ from dfc.bench.pixel_filters import GENERATIONS, filtered_raster, polygon_scene
 from dfc.codec import EncodeSettings, encode_image, encode_samples, loads
 from dfc.errors import FormatError, InputError
 from dfc.io.container import decode_dfield
-from dfc.pixel_filter import PixelFilter, parse
+from dfc.pixel_filter import parse
 from dfc.pixel_model import detect, step_share
 from dfc.render import default_pixel_filter, render
 
@@ -61,7 +61,7 @@ def test_nodes_integrate_the_kernel(spec):
 
 
 def test_box_subsamples_and_step_share():
-    off, w = parse("box:2").nodes(16)
+    off, _ = parse("box:2").nodes(16)
     assert sorted(map(tuple, off)) == [(-0.25, -0.25), (-0.25, 0.25), (0.25, -0.25), (0.25, 0.25)]
     d = np.array([-0.3, -0.1, 0.1, 0.3])
     n = np.tile([[0.0, 1.0]], (4, 1))
@@ -84,7 +84,7 @@ def test_raster_generation_matches_the_definition(scene):
 def test_auto_picks_the_generating_filter(scene, rasters, generation):
     found = detect(rasters[generation], scene.curves)
     assert str(found.filter) == generation, found.evidence()
-    assert found.pixels > 100 and list(found.misfit)[0] == generation
+    assert found.pixels > 100 and next(iter(found.misfit)) == generation
 
 
 def test_detect_without_evidence_falls_back_to_box(scene):
