@@ -222,7 +222,7 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
         if steps is None:  # resolved here for the progress bar
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0, batch_size))
         if curves_path == "auto":
-            curves, curves_info = _auto_curves(signal)
+            curves, curves_info = _auto_curves(signal, settings.pixel_filter)
         else:
             curves = read_curves_checked(curves_path, quiet)
         input_bytes = sum(os.path.getsize(p) for p in paths)
@@ -263,22 +263,24 @@ def command(input_paths, curves_path, output, max_triangles, max_area, edge_leng
                                **({"curves": curves_info} if curves_info else {}), **asdict(report)})
 
 
-def _auto_curves(image):
-    """``--curves auto``: the image's curves by the raster extractor at its defaults, and the record of that for the
-    file's encoder info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, counts)."""
+def _auto_curves(image, pixel_filter: str = "auto"):
+    """``--curves auto``: the image's curves by the raster extractor at its defaults with the encode's pixel filter
+    (``image_curves_filtered``: "auto" detects it as the encoder does), and the record of that for the file's encoder
+    info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, ``pixel_filter``, counts)."""
     from dataclasses import replace
 
     from ..errors import ExtraError
 
     try:
-        from ..geometry.sources.raster import RasterSettings, image_curves
+        from ..geometry.sources.raster import RasterSettings, image_curves_filtered
 
         extractor = RasterSettings()
-        curves = image_curves(image.pixels, extractor)
+        curves, used, _ = image_curves_filtered(image.pixels, extractor, pixel_filter)
     except ImportError:
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
     record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
-              "settings": extractor.to_dict(), "curves": curves.n_curves, "pieces": len(curves)}
+              "settings": extractor.to_dict(), "pixel_filter": str(used), "curves": curves.n_curves,
+              "pieces": len(curves)}
     return replace(curves, source="auto"), record
 
 
