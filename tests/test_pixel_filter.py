@@ -2,6 +2,7 @@
 and 1x decode with a filter, the header key, the decode rule and the CLI's errors."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -97,10 +98,9 @@ def test_detect_without_evidence_falls_back_to_box(scene):
 def test_auto_encode_equals_the_true_model_and_beats_box(scene, rasters, generation):
     settings = EncodeSettings(steps=120, batch_size=4096)
     raster = rasters[generation]
-    blob, auto = encode_image(raster, scene.curves, EncodeSettings(**{**settings.__dict__, "pixel_filter": "auto"}))
-    _, told = encode_image(raster, scene.curves, EncodeSettings(**{**settings.__dict__,
-                                                                   "pixel_filter": generation}))
-    _, box = encode_image(raster, scene.curves, EncodeSettings(**{**settings.__dict__, "pixel_filter": "box"}))
+    blob, auto = encode_image(raster, scene.curves, replace(settings, pixel_filter="auto"))
+    _, told = encode_image(raster, scene.curves, replace(settings, pixel_filter=generation))
+    _, box = encode_image(raster, scene.curves, replace(settings, pixel_filter="box"))
     assert auto.pixel_filter == generation and generation in auto.pixel_evidence
     assert abs(auto.psnr - told.psnr) <= 0.5
     assert auto.psnr > box.psnr + 5.0
