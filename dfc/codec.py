@@ -326,6 +326,7 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     same parameters (``dfc.train.distributed.check_replicas``).
     """
     from .geometry.pixels import EdgeMask
+    from .io.bands import MappedBands
     from .train import distributed
     from .train.bands import HeldOut, scan
     from .train.fit import MAX_DROPPED_FRACTION, fit_bands
@@ -351,13 +352,21 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     scale = (QualityScale(1.0, tonemap=True)
              if is_hdr(hi=float(stats.hi.max()), mean=float(np.mean(stats.mean)))
              else quality_scale(np.array([stats.lo.min(), stats.hi.max()])))
-    model = fit_bands(source, mesh, stats, steps=settings.steps, batch_size=settings.batch_size,
+    value_map, fit_scale, units = _units(np.stack([stats.lo, stats.hi]), scale)
+    fit_source, fit_stats = source, stats
+    if value_map is not None:  # the fit reads normalised bands; its statistics follow
+        fit_source = MappedBands(source, value_map)
+        fit_stats = replace(stats, lo=(stats.lo - value_map.offset) / value_map.scale,
+                            hi=(stats.hi - value_map.offset) / value_map.scale,
+                            total=(stats.total - stats.count * value_map.offset) / value_map.scale)
+    model = fit_bands(fit_source, mesh, fit_stats, steps=settings.steps, batch_size=settings.batch_size,
                       epoch_pixels=settings.epoch_pixels,
                       mixed=mixed if stats.mixed <= MAX_DROPPED_FRACTION * stats.count else None, held_out=held_out,
                       dim=settings.dim, seed=settings.seed, loss=settings.loss, device=settings.device,
                       qat_steps=settings.qat_steps, feature_bits=settings.feature_bits,
                       weight_bits=settings.weight_bits, hidden=settings.hidden, layers=settings.layers,
-                      callback=callback, channels=channels, data_range=scale.data_range, tonemap=scale.tonemap)
+                      callback=callback, channels=channels, data_range=fit_scale.data_range,
+                      tonemap=fit_scale.tonemap)
     seconds["fit_s"] = time.perf_counter() - clock
     distributed.check_replicas(model)
     distributed.barrier()
@@ -369,7 +378,8 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     centres = (held_xy + 0.5) * np.array([(mesh.domain[2] - mesh.domain[0]) / w, (mesh.domain[3] - mesh.domain[1]) / h])
     centres += np.array(mesh.domain[:2])
     blob, report = _finish(model, settings, info, seconds, w * h, lambda m: (held_values, values_at(
-        m, centres, device=settings.device, block=QUERY_BLOCK)), scale, pixel_size=(1.0, 1.0))
+        m, centres, device=settings.device, block=QUERY_BLOCK)), scale, pixel_size=(1.0, 1.0), value_map=value_map,
+        units=units)
     report.heldout = len(held_xy)
     return blob, report
 

@@ -9,6 +9,7 @@ from dfc.bench.scenes import get_scene
 from dfc.codec import (
     EncodeSettings,
     check_domain,
+    encode_bands,
     encode_fem,
     encode_frames,
     encode_image,
@@ -17,6 +18,7 @@ from dfc.codec import (
 )
 from dfc.field.units import choose, describe
 from dfc.geometry.curves import read_curves
+from dfc.io.bands import ArrayBands
 from dfc.io.fem import from_meshio
 from dfc.io.frames import FrameSequence
 from dfc.io.samples import SampleSet
@@ -45,6 +47,13 @@ def _image(values):
     blob, _ = encode_image(values, check_domain(scene.curves, w, h, fit=True), SETTINGS)
     m = loads(blob)
     return blob, render(m, w, h, edge_spp=default_edge_spp(m, w, h))
+
+
+def _bands(values):
+    scene = get_scene("shapes")
+    h, w = values.shape[:2]
+    blob, _ = encode_bands(ArrayBands(values, ["R", "G", "B"]), check_domain(scene.curves, w, h, fit=True), SETTINGS)
+    return blob, render(loads(blob), w, h)
 
 
 def _frames(values):
@@ -93,6 +102,7 @@ def cases(tmp_path_factory):
     frames = np.stack([pixels, pixels[:, ::-1]])
     return {"image": (pixels, lambda v: _image(v.astype(np.float32))),
             "frames": (frames, lambda v: _frames(v.astype(np.float32))),
+            "bands": (pixels, lambda v: _bands(v.astype(np.float32))),
             "samples": _samples_case(tmp), "fem": _fem_case(tmp)}
 
 
@@ -105,7 +115,7 @@ def unit_results(cases):
     return out
 
 
-@pytest.mark.parametrize("kind", ["image", "frames", "samples", "fem"])
+@pytest.mark.parametrize("kind", ["image", "frames", "samples", "fem", "bands"])
 @pytest.mark.parametrize("scale,offset", UNITS)
 def test_quality_and_size_do_not_depend_on_units(cases, unit_results, kind, scale, offset, one_thread):
     values, run = cases[kind]
