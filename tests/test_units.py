@@ -145,12 +145,21 @@ def test_choose_normalises_to_the_unit_interval():
     v = m.normalise(np.stack([lo, hi]))
     assert v.min() >= 0.0 and v.max() <= 1.0 and m.unit == pytest.approx(7.0, rel=1e-5)
     const = choose(np.array([1e6 + 0.25]), np.array([1e6 + 0.25]))
-    assert const.offset[0] == 1e6 + 0.25 and const.scale[0] == 1.0
+    assert const.offset[0] == 1e6 + 0.25 and const.offset[0] + const.scale[0] * 0.99 == const.offset[0]
     assert "constant data" in describe(5.0, 5.0, const)
     # a huge offset on a small variation read as float32 has lost its digits; the summary says so
     line = describe(1e6 - 1e-3, 1e6 + 1e-3, choose([1e6 - 1e-3], [1e6 + 1e-3]))
-    assert "float32 input resolves about 0 levels" in line
+    assert "a large offset" in line and "float32 input resolves only about 0 levels" in line
+    assert "[999999.999, 1000000.001]" in line  # the range is printed with the digits that tell its ends apart
     assert "levels" not in describe(0.0, 1.0, choose([0.0], [1.0]))
+
+
+def test_constant_data_decodes_exactly(tmp_path, one_thread):
+    pts, tris = grid_mesh(8)
+    solution = from_meshio(meshio.Mesh(pts, [("triangle", tris)], point_data={"u": np.full(len(pts), 3.25)}))
+    blob, report = encode_fem(solution, _wall(tmp_path), EncodeSettings(steps=20, batch_size=256, max_triangles=40))
+    assert np.all(values_at(loads(blob), node_points(solution)[0]) == 3.25) and report.psnr == float("inf")
+    assert "constant data" in report.units
 
 
 def test_hdr_is_a_peak_not_a_unit():

@@ -23,12 +23,14 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["FLOAT32_LEVELS", "ValueMap", "choose", "describe"]
+__all__ = ["CONSTANT_SCALE", "FLOAT32_LEVELS", "ValueMap", "choose", "describe"]
 
 SCALE_DIGITS = 6
 """Significant decimal digits of a stored scale."""
 OFFSET_DIGITS = 4
 """Decimal digits of a stored offset below the leading digit of the span: an offset within 1e-4 of the span."""
+CONSTANT_SCALE = 2.0**-60
+"""``choose``: the scale of constant data, relative to its magnitude."""
 FLOAT32_LEVELS = 1 << 16
 """``describe`` warns when float32 input resolves fewer than this many levels across the data's span (a huge offset
 on a small variation: its values were rounded before dfc saw them)."""
@@ -74,13 +76,14 @@ def _round(x: float, digits: int, up: bool) -> float:
 
 def choose(lo, hi) -> ValueMap:
     """The map of data whose channels span ``lo`` (C,) … ``hi`` (C,) (float64): offsets ``lo`` rounded down, scale
-    the overall span rounded up; a constant signal (span 0, or too small to divide by) gets scale 1 and its exact
-    values as offsets."""
+    the overall span rounded up. A constant signal (span 0, or too small to divide by) gets its exact values as
+    offsets and the scale ``CONSTANT_SCALE`` times its magnitude (at least 1): below half a unit in the last place
+    of the offset, so the decoded value is the offset bit for bit whatever the network returns below 1."""
     lo, hi = np.asarray(lo, np.float64).ravel(), np.asarray(hi, np.float64).ravel()
     span = float(hi.max() - lo.min())
     magnitude = float(max(np.abs(lo).max(), np.abs(hi).max()))
     if not span > 1e-300 or span <= 4 * np.finfo(np.float64).eps * magnitude:
-        return ValueMap(lo.copy(), np.ones_like(lo))
+        return ValueMap(lo.copy(), np.full_like(lo, CONSTANT_SCALE * max(1.0, magnitude)))
     scale = _round(span, SCALE_DIGITS, up=True)
     offset = []
     for v in lo:
@@ -95,15 +98,20 @@ def choose(lo, hi) -> ValueMap:
 def describe(lo: float, hi: float, value_map: ValueMap | None, dtype=np.float32) -> str:
     """One line for an encoder's summary: the data's range and the units the fit used; says so for constant data
     and for data whose span is tiny against its magnitude (``FLOAT32_LEVELS``, input read as ``dtype``)."""
-    text = f"data range [{lo:.6g}, {hi:.6g}]"
+    magnitude = max(abs(lo), abs(hi))
+    digits = 6 if hi == lo else max(6, math.ceil(math.log10(max(magnitude, 1e-300) / (hi - lo))) + 4)
+    text = f"data range [{lo:.{digits}g}, {hi:.{digits}g}]"
     if value_map is None:
         return text + "; fitted in log space as HDR light (log(1 + v), tone-mapped quality)"
     if hi == lo:
         return text + f": constant data, stored exactly as the decoder's offset {value_map.offset[0]:.17g}"
-    text += f" (span {hi - lo:.4g}); fitted as (v − offset) / {value_map.unit:.6g}, offset " + \
-        ", ".join(f"{v:.10g}" for v in value_map.offset)
-    resolution = np.finfo(dtype).eps * max(abs(lo), abs(hi))
+    text += f" (span {hi - lo:.4g}"
+    if hi - lo < 1e-3 * magnitude:
+        text += f", {(hi - lo) / magnitude:.2g} of the values' magnitude: a large offset, fitted around it"
+    text += f"); fitted as (v − offset) / {value_map.unit:.6g}, offset " + \
+        ", ".join(repr(float(v)) for v in value_map.offset)
+    resolution = np.finfo(dtype).eps * magnitude
     if (hi - lo) < FLOAT32_LEVELS * resolution:
-        text += (f"; the span is {(hi - lo) / max(abs(lo), abs(hi)):.2g} of the values' magnitude: the {np.dtype(dtype).name} "
-                 f"input resolves about {round((hi - lo) / resolution)} levels in it")
+        text += (f"; the {np.dtype(dtype).name} input resolves only about {round((hi - lo) / resolution)} levels in "
+                 "that span (its values were rounded before dfc read them)")
     return text
