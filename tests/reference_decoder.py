@@ -444,7 +444,11 @@ class ReferenceField:
             z = z @ self.mlp[f"layers.{i}.weight"].T + self.mlp[f"layers.{i}.bias"]
             if i < n_layers - 1:
                 z = act(z)
-        return np.expm1(z) if self.header["value_transform"] == "log" else z
+        transform = self.header["value_transform"]
+        if transform == "affine":                                    # D §5: offset + scale · y, product first
+            return np.asarray(self.header["value_offset"], np.float64) + \
+                np.asarray(self.header["value_scale"], np.float64) * z
+        return np.expm1(z) if transform == "log" else z
 
 
 def _pixel_filter(spec: str):

@@ -295,6 +295,8 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
                      "--preview P.png)")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
+    if report.units:
+        lines.append(report.units)
     scale = ("tone-mapped x/(1+x), " if report.tonemapped else "") + f"data range {report.data_range:.4g}"
     if kind == "samples" and report.heldout:
         lines.append(f"PSNR of the decoded file against {report.heldout} held-out samples (left out of the fit): "

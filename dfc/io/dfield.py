@@ -12,6 +12,7 @@ from torch.nn.utils import parametrize
 from ..errors import FormatError
 from ..field.model import FieldModel
 from ..field.quantize import FakeQuantizeWeights
+from ..field.units import ValueMap
 from .container import DfieldContents, decode_dfield, read_dfield
 
 __all__ = ["from_contents", "load", "loads", "to_contents"]
@@ -19,8 +20,8 @@ __all__ = ["from_contents", "load", "loads", "to_contents"]
 _ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
 
 
-def to_contents(model: FieldModel, encoder: dict | None = None, *,
-                pixel_size: tuple[float, float] | None = None, pixel_filter: str | None = None) -> DfieldContents:
+def to_contents(model: FieldModel, encoder: dict | None = None, *, pixel_size: tuple[float, float] | None = None,
+                value_map=None, pixel_filter: str | None = None) -> DfieldContents:
     """The ``.dfield`` contents of a fitted ``FieldModel`` (quantised values when its quantised mode is on).
 
     encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
@@ -28,12 +29,18 @@ def to_contents(model: FieldModel, encoder: dict | None = None, *,
         ``pixel_size``: decoders anti-alias at or below that resolution); None for other inputs
     pixel_filter : spec string of the filter that made that raster's pixels (header ``pixel_filter``,
         ``dfc.pixel_filter``); None: not stored
+    value_map : the ``dfc.field.units.ValueMap`` to store (default ``model.value_map``): the header's
+        ``value_transform`` is then "affine" with its ``value_offset`` and ``value_scale`` (identity models only)
     """
     config = model.config()
+    value_map = value_map if value_map is not None else model.value_map
+    if value_map is not None and config["transform"] != "identity":
+        raise ValueError(f"a value map needs the identity transform, the model has {config['transform']!r}")
     header = {
         "domain": [float(v) for v in model.field.mesh.domain],
         "channels": list(config["channels"]),
-        "value_transform": config["transform"],
+        "value_transform": config["transform"] if value_map is None else "affine",
+        **({} if value_map is None else value_map.header()),
         "times": config["times"],
         "model": {k: config[k] for k in _ARCH_KEYS},
         "encoder": dict(encoder or {}),
@@ -69,9 +76,12 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldMode
     missing = [k for k in _ARCH_KEYS if k not in arch]
     if missing:
         raise FormatError(f"HEAD: model lacks {missing}")
-    config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": h["value_transform"], "channels": h["channels"],
-              "n_slices": int(contents.features.shape[0]), "times": h["times"]}
+    affine = h["value_transform"] == "affine"
+    config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": "identity" if affine else h["value_transform"],
+              "channels": h["channels"], "n_slices": int(contents.features.shape[0]), "times": h["times"]}
     model = FieldModel.from_config(contents.mesh, config, device=device)
+    if affine:
+        model.value_map = ValueMap(np.array(h["value_offset"], np.float64), np.array(h["value_scale"], np.float64))
     with torch.no_grad():
         bank = torch.from_numpy(np.ascontiguousarray(contents.features))
         if tuple(bank.shape) != tuple(model.field.bank.shape):

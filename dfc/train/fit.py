@@ -16,10 +16,11 @@ from ..field.model import FieldModel
 from ..field.quantize import DEFAULT_FEATURE_BITS
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
-from ..metrics import quality_scale
+from ..metrics import QualityScale, is_hdr
+from ..metrics import data_range as value_span
 from ..pixel_filter import TRAIN_POINTS
 from .loop import BETAS, Sampler, Schedule, train
-from .losses import DataLoss, auto_loss
+from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
 __all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "fit", "fit_bands", "fit_frames",
@@ -148,7 +149,8 @@ def fit_image(
     batch_size : samples per step (stratified, see ``image_sampler``)
     dim : feature channels
     seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
-    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (any value > 1), else "mse"
+    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (``dfc.metrics.is_hdr``), else
+        "mse"
     qat_steps : quantisation-aware final steps (default ``DEFAULT_QAT_FRACTION`` of ``steps``)
     feature_bits : bits of the features during those steps (as the file will store them)
     weight_bits : bits of the integer weight matrices during those steps (None: fp16, as ``MLPW`` stores them)
@@ -169,7 +171,8 @@ def fit_image(
         field filtered by it there (``dfc.train.pixel_sampler``; every pixel is trained, ``mixed_pixels`` is
         ignored); None: point samples jittered in each pixel, mixed pixels as ``mixed_pixels`` says
     **model_kw : ``FieldModel`` options (hidden, layers, activation, oneblob_bins, transform; the transform
-        defaults to "log" for HDR images whose values are all > -1, else "identity")
+        defaults to "log" for HDR images whose values are all > -1, else "identity"). The fit works on the values
+        as given: ``dfc.codec`` hands it values normalised to [0, 1] (``dfc.field.units``)
 
     Returns
     -------
@@ -236,7 +239,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     """A fresh ``FieldModel`` for targets whose values span ``lo .. hi``, with per-channel ``mean`` (C,) and mean
     ``log_mean`` (C,) of ``log(1 + max(v, 0))``, and the ``fit`` settings derived from them.
 
-    HDR targets (some value > 1) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
+    HDR targets (``dfc.metrics.is_hdr``) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
     transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
     output bias starts at the mean of the targets in its output space (for the log transform the mean of the logs,
     not the log of the mean, which bright pixels pull far above most of the image). ``scale`` is (data_range,
@@ -245,9 +248,9 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     """
     from ..field.feature_field import FeatureField
 
-    hdr = hi > 1.0
-    if loss == "auto":
-        loss = auto_loss(np.array([lo, hi]))
+    hdr = is_hdr(hi=hi, mean=float(np.mean(mean)))
+    if loss == "auto":  # ``dfc.train.losses.auto_loss`` of the targets, from their statistics
+        loss = "logmse" if hdr else "mse"
     if hdr and lo > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps
@@ -258,7 +261,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
     with torch.no_grad():
         model.decoder.linears()[-1].bias.copy_(torch.from_numpy(log_mean if model.transform == "log" else mean))
-    default = quality_scale(np.array([lo, hi]))
+    default = QualityScale(1.0, tonemap=True) if hdr else QualityScale(value_span(np.array([lo, hi])))
     data_range, tonemap = scale
     data_range = default.data_range if data_range is None else data_range
     tonemap = default.tonemap if tonemap is None else tonemap
@@ -369,7 +372,8 @@ def fit_samples(
     dim, seed, qat_steps, feature_bits, weight_bits, callback, data_range, tonemap, **model_kw : as in ``fit_image``
     lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (lower than ``fit_image``'s, see
         ``SAMPLES_LR``)
-    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" when some value is > 1 (HDR), else "mse"
+    loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR values (``dfc.metrics.is_hdr``), else
+        "mse"
     channels : output channel names (default: the sample set's, else ``dfc.io.samples.default_channels``)
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at up to ``MAX_CARRY_POINTS`` of the sample positions)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ..metrics import tonemap
+from ..metrics import is_hdr, tonemap
 
 __all__ = ["LOSSES", "RELMSE_EPS", "DataLoss", "auto_loss", "loss_value", "signed_log"]
 
@@ -16,9 +16,9 @@ RELMSE_EPS = 0.01
 
 def auto_loss(values) -> str:
     """The loss ``loss="auto"`` means for targets ``values`` (array, any shape) of an image: ``"logmse"`` for HDR
-    colours (some value > 1), else ``"mse"``. Every fit of a colour signal resolves "auto" here: dfc's encoder and
+    colours (``dfc.metrics.is_hdr``), else ``"mse"``. Every fit of a colour signal resolves "auto" here: dfc's encoder and
     the comparison harness's baselines."""
-    return "logmse" if float(values.max()) > 1.0 else "mse"
+    return "logmse" if is_hdr(values) else "mse"
 
 
 def signed_log(v: Tensor) -> Tensor:

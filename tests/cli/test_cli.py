@@ -72,8 +72,9 @@ def test_encode_summary_and_stats(encoded, capsys):
     assert s["bits_per_pixel"] == pytest.approx(8 * report["total_bytes"] / (256 * 256))
     assert sum(s["chunk_bytes"].values()) + 16 == s["file_bytes"]
     assert s["channels"] == ["R", "G", "B"] and s["time_axis"] is None
+    assert s["value_transform"] == "affine" and len(s["value_map"]["offset"]) == 3  # fitted in normalised units
     code, out, _ = run(["stats", path], capsys)
-    assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out
+    assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out and "offset + scale" in out
 
 
 def test_decode_matches_reported_psnr_and_is_deterministic(encoded, tmp_path, capsys):

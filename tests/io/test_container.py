@@ -329,10 +329,16 @@ def test_hostile_headers(blob, contents):
         {**base, "channels": []}, {**base, "channels": ["a", "a"]}, {**base, "value_transform": "sqrt"},
         {**base, "times": [1.0, 2.0]}, {**base, "model": []}, {k: v for k, v in base.items() if k != "domain"},
         [1, 2], {**base, "domain": [0, 0, True, 32]}, {**base, "channels": "rgb"}, {**base, "encoder": 3},
+        {**base, "value_transform": "affine"}, {**base, "value_offset": [0, 0, 0], "value_scale": [1, 1, 1]},
+        {**base, "value_transform": "affine", "value_offset": [0, 0], "value_scale": [1, 1, 1]},
+        {**base, "value_transform": "affine", "value_offset": [0, 0, 0], "value_scale": [1, -1, 1]},
+        {**base, "value_transform": "affine", "value_offset": [0, 0, "0"], "value_scale": [1, 1, 1]},
     ]
     for h in bad:
         with pytest.raises(FormatError):
             decode_dfield(with_header(blob, h))
+    affine = {**base, "value_transform": "affine", "value_offset": [1e6, 0, -2], "value_scale": [1e-9, 1, 3]}
+    assert decode_dfield(with_header(blob, affine)).header["value_offset"] == [1e6, 0, -2]
     text = json.dumps(base).encode()
     for raw in (text.replace(b'"identity"', b"NaN"), b"\xff" + text, text[:-1], b'{"a": 1, "a": 2}',
                 b"[" * 100000 + b"]" * 100000, b'{"x": ' + b"[" * 40 + b"]" * 40 + b"}", b" " * (2**20 + 1)):

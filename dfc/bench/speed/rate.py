@@ -143,6 +143,7 @@ def command(scene_name, overrides, json_path):
 
     from ...codec import EncodeSettings, encode_image
     from ...io.image import Image
+    from ...metrics import is_hdr
     from ..scenes import get_scene
 
     scene = get_scene(scene_name)
@@ -150,7 +151,7 @@ def command(scene_name, overrides, json_path):
     pixels = scene.render(round(x1 - x0), round(y1 - y0))
     settings = EncodeSettings(**overrides)
     clock = time.perf_counter()
-    blob, report = encode_image(Image(pixels, scene.channels, hdr=float(pixels.max()) > 1.0), scene.curves, settings)
+    blob, report = encode_image(Image(pixels, scene.channels, hdr=is_hdr(pixels)), scene.curves, settings)
     seconds = time.perf_counter() - clock
     out = {"scene": scene_name, "settings": asdict(settings), "encode_s": seconds, "chunks": report.chunk_bytes,
            "triangles": report.n_triangles, **measure(scene, blob, pixels)}
