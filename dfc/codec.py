@@ -4,6 +4,10 @@ Every encoder runs the same steps: check the input, build the mesh exactly as th
 (``dfc.rate``), fit it (``dfc.train.fit``) with the last steps quantisation-aware, write the file and measure the
 written bytes decoded again (``_finish``), so the file decodes to what it reports. PSNRs are measured on
 ``dfc.metrics.quality_scale`` (tone-mapped for HDR colours), the same scale the fit's progress sees.
+
+Units (``dfc.field.units``): every input but HDR light is fitted on its values normalised to [0, 1] by an offset and
+a scale chosen from the data (``_units``), which the file stores; the fit's PSNRs are of the normalised values with
+the data range divided by the scale, the same dB. So a signal fits the same in any unit.
 """
 
 from __future__ import annotations
@@ -18,9 +22,10 @@ import numpy as np
 
 from .errors import InputError, TargetBytesError
 from .field.quantize import DEFAULT_FEATURE_BITS
+from .field.units import ValueMap, choose, describe
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import encode_model, encoder_info, load, loads
-from .metrics import QualityScale, quality_scale
+from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set,
                    sample_mesh_size, sized_mesh)
@@ -70,10 +75,12 @@ Callback = Callable[..., None]
 class EncodeReport:
     """What an encode measured. ``psnr`` is of the written file decoded, against the input (for a sample set: the
     ``heldout`` samples left out of the fit; for an image read out of core: its ``heldout`` held-out pixels), with
-    ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``psnr_reference``:
+    ``data_range``, on tone-mapped values when ``tonemapped`` (``dfc.metrics.quality_scale``). ``units``: one line
+    with the data's range and the units it was fitted in (``dfc.field.units.describe``). ``psnr_reference``:
     against the exact values given as ``reference``, on the same scale (sample sets), else None. ``target_psnr``: the
     PSNR the encode aimed at (``EncodeSettings.target_psnr``, or ``FEM_TARGET_PSNR`` by default for a FEM solution),
-    else None. ``feature_bits``: the bits the features were stored with."""
+    else None. ``feature_bits``: the bits the features were stored with. ``pixel_filter``: the filter an image read
+    whole was fitted and stored with, and ``pixel_evidence`` why ``auto`` chose it (``Detection.evidence``)."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -89,6 +96,9 @@ class EncodeReport:
     psnr_reference: float | None = None
     target_psnr: float | None = None
     feature_bits: int = DEFAULT_FEATURE_BITS
+    pixel_filter: str | None = None
+    pixel_evidence: str | None = None
+    units: str = ""
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -127,6 +137,19 @@ def _image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> 
     width = decoder_hidden(n_values, budget, inputs=settings.dim, outputs=n_channels, layers=settings.layers,
                            weight_bits=settings.weight_bits)
     return replace(settings, hidden=min(settings.hidden, width))
+
+
+def _units(values, scale: QualityScale, dtype=np.float32) -> tuple[ValueMap | None, QualityScale, str]:
+    """The units a signal ``values`` (…, C) measured on ``scale`` is fitted in: (``dfc.field.units.choose``'s map,
+    or None for HDR light (``scale.tonemap``), which is fitted on its values; the scale of the fit's PSNRs in those
+    units: the data range divided by the map's scale, the same dB; the summary line ``describe``, ``dtype`` being
+    the input's)."""
+    v = np.asarray(values)
+    v = v.reshape(-1, v.shape[-1])
+    lo, hi = v.min(axis=0).astype(np.float64), v.max(axis=0).astype(np.float64)
+    value_map = None if scale.tonemap else choose(lo, hi)
+    fit_scale = scale if value_map is None else QualityScale(scale.data_range / value_map.unit)
+    return value_map, fit_scale, describe(float(lo.min()), float(hi.max()), value_map, dtype)
 
 
 # ----------------------------------------------------------------------------------------------- encoders
@@ -170,17 +193,20 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     curves_info : where the curves came from, stored in the file's encoder info under ``curves`` (``dfc encode
         --curves auto``: extracted from the image, with the extractor's settings)
 
+    The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
+    is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).
+
     Returns
     -------
     (blob, report): the ``.dfield`` bytes and an ``EncodeReport`` whose ``psnr`` is of ``blob`` decoded and
-    rendered as ``dfc decode`` renders it at the input's size (at the pixel centres, the pixels a curve crosses
-    averaged over ``dfc.render.EDGE_SPP`` points), against the input (tone-mapped for HDR input,
-    ``report.tonemapped``).
+    rendered as ``dfc decode`` renders it at the input's size (the pixels a curve changes filtered with the stored
+    filter, the others at their centres), against the input (tone-mapped for HDR input, ``report.tonemapped``).
     """
     from .geometry.pixels import edge_pixels
     from .io.image import check_pixels
     from .io.samples import default_channels
-    from .render import EDGE_SPP, default_edge_spp, render, window_points
+    from .pixel_model import resolve
+    from .render import render, window_points
     from .train.fit import fit_image
 
     settings = _with_steps(settings or EncodeSettings(), "image")
@@ -189,29 +215,42 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
     scale = quality_scale(pixels)
+    value_map, fit_scale, units = _units(pixels, scale)
+    fitted = pixels if value_map is None else value_map.normalise(pixels)
+    clock = time.perf_counter()
+    pixel_filter, detection = resolve(settings.pixel_filter, pixels, curves)
+    detect_s = time.perf_counter() - clock
     clock = time.perf_counter()
     settings, mesh = image_mesh_size(curves, settings, w * h)  # small images: a mesh and decoder sized to them
     sizing_s = time.perf_counter() - clock
     settings = replace(_image_decoder(settings, pixels.size, c), refine=refine_rounds(settings))
 
-    def residual(m):  # squared error at the pixel centres the fit trains on (mixed pixels are not): refinement
+    def residual(m):  # squared error at the pixel centres (those a curve changes left out): refinement
         centres = window_points(curves.domain, w, h)
-        err = _error(m, centres, pixels.reshape(-1, c), settings)
-        err[edge_pixels(m.field.mesh, h, w).ravel()] = 0.0
+        err = _error(m, centres, fitted.reshape(-1, c), settings)
+        err[pixel_filter.filtered(edge_pixels(m.field.mesh, h, w)).ravel()] = 0.0
         return centres, err
 
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
-                                                  "hdr": float(pixels.max()) > 1.0,
-                                                  **({"curves": curves_info} if curves_info else {})})
-    model, seconds = _mesh_and_fit(fit_image, image, curves, settings, channels, callback, mesh=mesh,
+                                                  "hdr": scale.tonemap,
+                                                  **({"curves": curves_info} if curves_info else {}),
+                                                  **({"pixel_model": detection.to_dict()} if detection else {})})
+    stored = str(pixel_filter)
+    model, seconds = _mesh_and_fit(fit_image, fitted, curves, settings, channels, callback, mesh=mesh,
                                    residual=residual, min_area=0.25,
-                                   size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0))[0]),
-                                   quality=lambda m: scale.psnr(pixels, render(m, w, h, edge_spp=EDGE_SPP)),
-                                   data_range=scale.data_range, tonemap=scale.tonemap)
+                                   size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0), value_map,
+                                                                      stored)[0]),
+                                   quality=lambda m: fit_scale.psnr(fitted, render(m, w, h, pixel_filter=pixel_filter)),
+                                   data_range=fit_scale.data_range, tonemap=fit_scale.tonemap,
+                                   pixel_filter=pixel_filter)
     seconds["mesh_s"] += sizing_s
-    return _finish(model, settings, info, seconds, w * h,
-                   lambda m: (pixels, render(m, w, h, edge_spp=default_edge_spp(m, w, h))), scale,
-                   pixel_size=(1.0, 1.0))
+    seconds = {"detect_s": detect_s, **seconds}
+    blob, report = _finish(model, settings, info, seconds, w * h,
+                           lambda m: (pixels, render(m, w, h, pixel_filter=pixel_filter)), scale,
+                           pixel_size=(1.0, 1.0), value_map=value_map, units=units, pixel_filter=stored)
+    report.pixel_filter = stored
+    report.pixel_evidence = detection.evidence() if detection else None
+    return blob, report
 
 
 @_feature_bits
@@ -231,10 +270,12 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     same parameters (``dfc.train.distributed.check_replicas``).
     """
     from .geometry.pixels import EdgeMask
+    from .io.bands import MappedBands
     from .train import distributed
     from .train.bands import HeldOut, scan
     from .train.fit import MAX_DROPPED_FRACTION, fit_bands
 
+    _no_pixel_filter(settings, "an image read in bands (out of core)")
     settings = _with_steps(settings or EncodeSettings(), "image")
     rank, world = distributed.world()
     h, w = source.height, source.width
@@ -253,11 +294,20 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     held_xy, held_values = distributed.gather_rows(stats.held_xy), distributed.gather_rows(stats.held_values)
     seconds["scan_s"] = time.perf_counter() - clock
     clock = time.perf_counter()
-    scale = quality_scale(np.array([stats.lo.min(), stats.hi.max()]))
-    model = fit_bands(source, mesh, stats, settings.fit, epoch_pixels=settings.epoch_pixels,
+    scale = (QualityScale(1.0, tonemap=True)
+             if is_hdr(hi=float(stats.hi.max()), mean=float(np.mean(stats.mean)))
+             else quality_scale(np.array([stats.lo.min(), stats.hi.max()])))
+    value_map, fit_scale, units = _units(np.stack([stats.lo, stats.hi]), scale)
+    fit_source, fit_stats = source, stats
+    if value_map is not None:  # the fit reads normalised bands; its statistics follow
+        fit_source = MappedBands(source, value_map)
+        fit_stats = replace(stats, lo=(stats.lo - value_map.offset) / value_map.scale,
+                            hi=(stats.hi - value_map.offset) / value_map.scale,
+                            total=(stats.total - stats.count * value_map.offset) / value_map.scale)
+    model = fit_bands(fit_source, mesh, fit_stats, settings.fit, epoch_pixels=settings.epoch_pixels,
                       mixed=mixed if stats.mixed <= MAX_DROPPED_FRACTION * stats.count else None, held_out=held_out,
                       feature_bits=settings.feature_bits, weight_bits=settings.weight_bits, callback=callback,
-                      channels=channels, data_range=scale.data_range, tonemap=scale.tonemap)
+                      channels=channels, data_range=fit_scale.data_range, tonemap=fit_scale.tonemap)
     seconds["fit_s"] = time.perf_counter() - clock
     distributed.check_replicas(model)
     distributed.barrier()
@@ -265,11 +315,12 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
         return None, None
     settings = replace(settings, workers=world)
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h} (bands)", "pixels": w * h,
-                                                  "hdr": float(stats.hi.max()) > 1.0, "held_out": len(held_xy)})
+                                                  "hdr": scale.tonemap, "held_out": len(held_xy)})
     centres = (held_xy + 0.5) * np.array([(mesh.domain[2] - mesh.domain[0]) / w, (mesh.domain[3] - mesh.domain[1]) / h])
     centres += np.array(mesh.domain[:2])
     blob, report = _finish(model, settings, info, seconds, w * h, lambda m: (held_values, values_at(
-        m, centres, device=settings.device, block=QUERY_BLOCK)), scale, pixel_size=(1.0, 1.0))
+        m, centres, device=settings.device, block=QUERY_BLOCK)), scale, pixel_size=(1.0, 1.0), value_map=value_map,
+        units=units)
     report.heldout = len(held_xy)
     return blob, report
 
@@ -310,6 +361,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     from .train.fit import fit_samples
 
     settings = settings or EncodeSettings()
+    _no_pixel_filter(settings, "a sample set")
     domain = getattr(samples, "domain", None)
     if domain is not None and not np.allclose(domain, curves.domain, rtol=1e-9, atol=0):
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
@@ -321,14 +373,16 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
                          f"shape {np.shape(reference)}")
     xy = np.asarray(samples.xy, dtype=np.float64)
     fitted, held = heldout_split(len(xy), settings.seed)
-    train = SampleSet(xy[fitted], values[fitted], domain, samples.channels)
+    scale = quality_scale(values)
+    value_map, fit_scale, units = _units(values, scale)
+    train = SampleSet(xy[fitted], values[fitted] if value_map is None else value_map.normalise(values[fitted]), domain,
+                      samples.channels)
     curves = split_pieces(curves, sample_piece_length(curves.domain, len(train)))
     clock = time.perf_counter()
     settings, mesh = sample_mesh_size(curves, settings, len(train))
     sizing_s = time.perf_counter() - clock
-    scale = quality_scale(values)
     model, seconds = _mesh_and_fit(fit_samples, train, curves, settings, channels, callback, mesh=mesh,
-                                   data_range=scale.data_range, tonemap=scale.tonemap)
+                                   data_range=fit_scale.data_range, tonemap=fit_scale.tonemap)
     seconds["mesh_s"] += sizing_s
     info = encoder_info(settings, curves.source, {"input": f"samples {len(xy)}", "samples": len(xy)})
     check = held if len(held) else fitted
@@ -336,7 +390,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     def truth(m):
         return values[check], values_at(m, xy[check], device=settings.device, block=QUERY_BLOCK)
 
-    blob, report = _finish(model, settings, info, seconds, len(xy), truth, scale)
+    blob, report = _finish(model, settings, info, seconds, len(xy), truth, scale, value_map=value_map, units=units)
     report.heldout = len(held)
     if reference is not None:
         h, w = np.shape(reference)[:2]
@@ -363,6 +417,13 @@ def default_steps(kind: str, n_samples: int = 0, batch_size: int = 1 << 14) -> i
     if kind == "image":
         return IMAGE_STEPS
     return sample_steps(n_samples, batch_size) if kind == "samples" else DEFAULT_STEPS
+
+
+def _no_pixel_filter(settings, kind: str) -> None:
+    """Raise ``InputError`` when ``settings`` name a pixel filter for an input ``kind`` that has no pixels to filter
+    or is not fitted with one (only images read whole are)."""
+    if getattr(settings, "pixel_filter", "auto") != "auto":
+        raise InputError(f"a pixel filter applies to an image read whole, not to {kind}")
 
 
 def _with_steps(settings: EncodeSettings, kind: str, n_samples: int = 0) -> EncodeSettings:
@@ -401,28 +462,32 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     from .physics.fem import fem_curves, node_points, sample_fem
     from .train.fit import fit_samples
 
+    _no_pixel_filter(settings, "a FEM solution")
     settings, fit_kw = _physical(_with_steps(fem_settings(settings or EncodeSettings()), "fem"))
     settings = replace(settings, refine=refine_rounds(settings))
     curves = fem_curves(solution, curves)
-    xy, values = sample_fem(solution, curves, mode=sampling, seed=settings.seed)
-    samples = SampleSet(xy, values, curves.domain, list(solution.channels))
     node_xy = node_points(solution)[0]
     nodal = solution.values[np.unique(solution.triangles)]
     scale = quality_scale(nodal, physical=True)
+    value_map, fit_scale, units = _units(nodal, scale, dtype=solution.values.dtype)
+    normalised = replace(solution, values=value_map.normalise(solution.values))
+    nodal_fitted = value_map.normalise(nodal)
+    xy, values = sample_fem(normalised, curves, mode=sampling, seed=settings.seed)
+    samples = SampleSet(xy, values, curves.domain, list(solution.channels))
     info = encoder_info(settings, curves.source, {"input": f"FEM {solution.source or 'mesh'}: {len(nodal)} nodes, "
                                                            f"{len(solution.triangles)} triangles",
                                                   "nodes": len(nodal), "fem_sampling": sampling})
 
-    def at_nodes(m):
-        return nodal, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)
+    def at_nodes(m, truth=nodal):
+        return truth, values_at(m, node_xy, device=settings.device, block=QUERY_BLOCK)
 
     model, seconds = _mesh_and_fit(fit_samples, samples, curves, settings, list(solution.channels), callback,
                                    residual=lambda m: (xy, _error(m, xy, values, settings)),
                                    min_area=float(np.median(triangle_areas(solution.points[solution.triangles]))),
-                                   size_of=lambda m: len(encode_model(m, settings, info)[0]),
-                                   quality=lambda m: scale.psnr(*at_nodes(m)),
-                                   data_range=scale.data_range, tonemap=False, **fit_kw)
-    return _finish(model, settings, info, seconds, len(nodal), at_nodes, scale)
+                                   size_of=lambda m: len(encode_model(m, settings, info, value_map=value_map)[0]),
+                                   quality=lambda m: fit_scale.psnr(*at_nodes(m, nodal_fitted)),
+                                   data_range=fit_scale.data_range, tonemap=False, **fit_kw)
+    return _finish(model, settings, info, seconds, len(nodal), at_nodes, scale, value_map=value_map, units=units)
 
 
 @_feature_bits
@@ -439,6 +504,7 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     from .render import default_edge_spp, render
     from .train.fit import fit_frames
 
+    _no_pixel_filter(settings, "a frame sequence")
     sequence = check_frames(sequence)
     frames = sequence.frames
     t, h, w, c = frames.shape
@@ -446,16 +512,18 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     curves = check_domain(curves, w, h, fit_curves)
     settings, fit_kw = _physical(_with_steps(settings or EncodeSettings(), "frames"))
     scale = QualityScale(signal_range(frames))  # values as they are: frames are fitted as physical quantities
-    model, seconds = _mesh_and_fit(fit_frames, sequence, curves, settings, channels, callback,
-                                   data_range=scale.data_range, tonemap=False, **fit_kw)
-    info = encoder_info(settings, curves.source, {"input": f"frames {t}x{w}x{h}", "pixels": t * w * h,
-                                                  "hdr": float(frames.max()) > 1.0})
+    value_map, fit_scale, units = _units(frames, scale)
+    fitted = replace(sequence, frames=value_map.normalise(frames))
+    model, seconds = _mesh_and_fit(fit_frames, fitted, curves, settings, channels, callback,
+                                   data_range=fit_scale.data_range, tonemap=False, **fit_kw)
+    info = encoder_info(settings, curves.source, {"input": f"frames {t}x{w}x{h}", "pixels": t * w * h})
 
     def truth(m):
         edge_spp = default_edge_spp(m, w, h)
         return frames, np.stack([render(m, w, h, t=float(s), edge_spp=edge_spp) for s in sequence.times])
 
-    return _finish(model, settings, info, seconds, t * w * h, truth, scale, pixel_size=(1.0, 1.0))
+    return _finish(model, settings, info, seconds, t * w * h, truth, scale, pixel_size=(1.0, 1.0),
+                   value_map=value_map, units=units)
 
 
 # ----------------------------------------------------------------------------------------------- shared steps
@@ -529,11 +597,13 @@ def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) 
 
 
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,
-            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], scale: QualityScale, pixel_size=None):
-    """Write the model to bytes, decode them, measure PSNR of the decoded model against ``truth`` on ``scale``
-    (``pixel_size``: of a raster input, for the header)."""
+            truth: Callable[[object], tuple[np.ndarray, np.ndarray]], scale: QualityScale, pixel_size=None,
+            value_map: ValueMap | None = None, units: str = "", pixel_filter: str | None = None):
+    """Write the model (fitted in the units of ``value_map``, ``_units``) to bytes, decode them, measure PSNR of the
+    decoded model against ``truth`` on ``scale`` (``pixel_size``, ``pixel_filter``: of a raster input, for the
+    header; ``units``: the summary's line)."""
     clock = time.perf_counter()
-    blob, sizes = encode_model(model, settings, info, pixel_size)
+    blob, sizes = encode_model(model, settings, info, pixel_size, value_map, pixel_filter)
     decoded = loads(blob, device=settings.device, validate_mesh=False)
     seconds["write_s"] = time.perf_counter() - clock
     clock = time.perf_counter()
@@ -545,6 +615,6 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
         psnr=scale.psnr(reference, test), data_range=scale.data_range,
         n_vertices=mesh.n_vertices, n_triangles=mesh.n_triangles, n_features=decoded.field.n_features,
         seconds=seconds, tonemapped=scale.tonemap, target_psnr=settings.target_psnr,
-        feature_bits=settings.feature_bits,
+        feature_bits=settings.feature_bits, units=units,
     )
     return blob, report

@@ -5,10 +5,12 @@ takes tensors, for the fit's progress).
 
 Which scale a signal's PSNR is measured on is decided in one place, ``quality_scale``: the encoder's summary, the
 fit's progress bar and the benchmarks use it. Colours in [0, 1] and physical quantities are compared as they are,
-with ``data_range``; HDR colours (some value above 1) are compared after the tone map ``x / (1 + x)`` (values
-clipped at 0, as ``dfc decode`` maps HDR files into PNG), with data range 1. A PSNR on the linear values with the
-input's span as data range (1000 for an image with a few very bright pixels) is dominated by the bright pixels and
-hides colour errors everywhere else.
+with ``data_range``; HDR colours (``is_hdr``: a peak above 1 and at least ``HDR_PEAK_RATIO`` times the mean) are
+compared after the tone map ``x / (1 + x)`` (values clipped at 0, as ``dfc decode`` maps HDR files into PNG), with
+data range 1. A PSNR on the linear values with the input's span as data range (1000 for an image with a few very
+bright pixels) is dominated by the bright pixels and hides colour errors everywhere else. Colours above 1 without
+such a peak (an image in 16-bit counts, or in [0, 1] times any unit) are values in other units, compared with their
+span like physical quantities: the decision does not depend on the unit.
 """
 
 from __future__ import annotations
@@ -17,7 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["QualityScale", "data_range", "mse", "psnr", "quality_scale", "tonemap"]
+__all__ = ["HDR_PEAK_RATIO", "QualityScale", "data_range", "is_hdr", "mse", "psnr", "quality_scale", "tonemap"]
+
+HDR_PEAK_RATIO = 8.0
+"""Colours are HDR light when their peak is above 1 and at least this many times their mean (three stops): the
+HDR test images reach 20 (``WideColorGamut.exr``) to 76, the ``hdr`` scene 23, LDR images and renders about 2
+(``samples/sample.exr`` 1.9). The ratio does not change with the unit, so an LDR image in sensor counts or times
+1e4 is not mistaken for light."""
 
 
 def _pair(image_true, image_test) -> tuple[np.ndarray, np.ndarray]:
@@ -87,6 +95,16 @@ def data_range(values, *, physical: bool = False) -> float:
     return max(hi - lo, 1e-12)
 
 
+def is_hdr(values=None, *, lo: float | None = None, hi: float | None = None, mean: float | None = None) -> bool:
+    """Whether colours ``values`` (any shape; or their ``hi`` peak and ``mean``) are HDR light: a peak above 1 and
+    at least ``HDR_PEAK_RATIO`` times the mean. Such colours are fitted in log space and measured tone-mapped;
+    others, whatever their unit, as values (``dfc.field.units``)."""
+    if values is not None:
+        v = np.asarray(values)
+        hi, mean = float(v.max()), float(v.mean(dtype=np.float64))
+    return hi > 1.0 and hi >= HDR_PEAK_RATIO * max(mean, 0.0)
+
+
 def tonemap(values):
     """Reinhard tone map ``x / (1 + x)`` of values clipped at 0, into [0, 1): a numpy array (any shape, float64 out
     for float64 in) or a torch tensor, elementwise."""
@@ -116,9 +134,9 @@ class QualityScale:
 def quality_scale(values, *, physical: bool = False) -> QualityScale:
     """The scale dfc measures the PSNR of a signal ``values`` (any shape) on, everywhere it reports one.
 
-    HDR colours (``physical=False`` and some value > 1): tone-mapped, data range 1. Otherwise no tone map and
-    ``data_range(values, physical=physical)``: 1 for colours in [0, 1], the span for physical quantities.
+    HDR colours (``physical=False`` and ``is_hdr``): tone-mapped, data range 1. Otherwise no tone map and
+    ``data_range(values, physical=physical)``: 1 for colours in [0, 1], else the span.
     """
-    if not physical and float(np.max(values)) > 1.0:
+    if not physical and is_hdr(values):
         return QualityScale(1.0, tonemap=True)
     return QualityScale(data_range(values, physical=physical))

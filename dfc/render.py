@@ -47,6 +47,31 @@ def default_edge_spp(model, width: int, height: int, window=None) -> int:
     return EDGE_SPP if at_most else 0
 
 
+def default_pixel_filter(model, width: int, height: int, window=None) -> tuple[str, str]:
+    """(filter spec, the rule that chose it) of a ``width × height`` render of ``window`` (default the domain):
+
+    - on the grid of the raster the file was fitted to (``input_pixel_size``, 0.1 % slack, the window's corner on
+      that grid): the file's ``pixel_filter`` (header), ``box`` for files without one;
+    - coarser output pixels along both axes (shrinking): ``box`` over the output pixel;
+    - otherwise (enlarging, or not a raster input): ``point``, the field at each pixel's centre: sharp edges.
+
+    ``box`` renders exactly as ``EDGE_SPP`` anti-aliasing did before files stored a filter.
+    """
+    size = input_pixel_size(model)
+    if size is None:
+        return "point", "not fitted to a raster"
+    x0, y0, x1, y1 = check_window(window, model.field.mesh.domain)
+    px, py = (x1 - x0) / width, (y1 - y0) / height
+    d0 = model.field.mesh.domain
+    aligned = all(abs(v - round(v)) < 1e-3 for v in ((x0 - d0[0]) / size[0], (y0 - d0[1]) / size[1]))
+    if abs(px / size[0] - 1) < 1e-3 and abs(py / size[1] - 1) < 1e-3 and aligned:
+        stored = (getattr(model, "header", None) or {}).get("pixel_filter")
+        return (stored, "the file's, on the input's grid") if stored else ("box", "on the input's grid")
+    if px >= size[0] * (1 - 1e-3) and py >= size[1] * (1 - 1e-3):
+        return "box", "shrinking: the output pixel's area"
+    return "point", "enlarging: the field at each pixel's centre"
+
+
 def check_window(window, domain) -> tuple[float, float, float, float]:
     """Validate a window (x0, y0, x1, y1); default: the domain. Raises ValueError when empty or not finite."""
     if window is None:
@@ -105,7 +130,8 @@ def window_points(window, width: int, height: int, spp: int = 1, *, rows: tuple[
 
 
 def render_region(model, width: int, height: int, window=None, *, rows: tuple[int, int], cols: tuple[int, int],
-                  spp: int = 1, t=None, max_points: int = MAX_POINTS, edge_spp: int = 0, mixed=None) -> np.ndarray:
+                  spp: int = 1, t=None, max_points: int = MAX_POINTS, edge_spp: int = 0, mixed=None,
+                  pixel_filter=None) -> np.ndarray:
     """Pixels (r1 − r0, c1 − c0, C) float32 of rows ``[r0, r1)`` and columns ``[c0, c1)`` of a ``width × height``
     render of ``window``, evaluated ``max_points`` at a time (whole rows of the region per call). The values do not
     depend on how a render is cut into regions of whole rows of the same width.
@@ -114,6 +140,9 @@ def render_region(model, width: int, height: int, window=None, *, rows: tuple[in
     edge_spp : when > ``spp``, pixels a discontinuity crosses average this many points (module notes)
     mixed : the ``EdgeMask`` of this ``width × height`` render of ``window`` (built when None and needed; pass one
         to reuse it across the regions of a render)
+    pixel_filter : a ``dfc.pixel_filter.PixelFilter`` (or its spec string) in output pixels, instead of
+        ``edge_spp``: the pixels a discontinuity changes under it (``PixelFilter.filtered``) are filtered by
+        quadrature (``filter_nodes``), the others take the value at their centre (``spp`` points)
     """
     if width < 1 or height < 1:
         raise ValueError(f"output size must be at least 1×1, got {width}×{height}")
@@ -121,7 +150,14 @@ def render_region(model, width: int, height: int, window=None, *, rows: tuple[in
     (r0, r1), (c0, c1) = rows, cols
     step = max(1, min(r1 - r0, max_points // ((c1 - c0) * spp)))
     device = model.field.bank.device
-    if edge_spp > spp and mixed is None:
+    nodes = None
+    if pixel_filter is not None:
+        from .pixel_filter import parse
+
+        pixel_filter = parse(pixel_filter) if isinstance(pixel_filter, str) else pixel_filter
+        nodes = filter_nodes(pixel_filter) if pixel_filter.mixes else None
+        edge_spp = 0
+    if (edge_spp > spp or nodes is not None) and mixed is None:
         from .geometry.pixels import EdgeMask
 
         mixed = EdgeMask(model.field.mesh, height, width, window)
@@ -136,16 +172,42 @@ def render_region(model, width: int, height: int, window=None, *, rows: tuple[in
                 mask = mixed.rows(a, b, cols=(c0, c1))
                 if mask.any():
                     block[mask] = _pixel_means(model, window, width, height, edge_spp, t, (a, c0), mask, max_points)
+            elif nodes is not None:
+                mask = _filtered_rows(mixed, pixel_filter, (a, b), (c0, c1))
+                if mask.any():
+                    block[mask] = _pixel_means(model, window, width, height, len(nodes[1]), t, (a, c0), mask,
+                                               max_points, nodes)
             out.append(block)
     return np.concatenate(out)
 
 
-def _pixel_means(model, window, width, height, spp, t, corner, mask, max_points) -> np.ndarray:
+def filter_nodes(pixel_filter) -> tuple[np.ndarray, np.ndarray]:
+    """A decode's quadrature of ``pixel_filter`` (``PixelFilter.nodes``): offsets (K, 2) in pixels from the pixel's
+    corner and weights (K,). The continuous box takes the ``EDGE_SPP`` points a render without a filter averages,
+    other kernels ``dfc.pixel_filter.DECODE_POINTS``."""
+    from .pixel_filter import DECODE_POINTS
+
+    continuous_box = pixel_filter.name == "box" and pixel_filter.param is None
+    off, weight = pixel_filter.nodes(EDGE_SPP if continuous_box else DECODE_POINTS)
+    return off + 0.5, weight
+
+
+def _filtered_rows(mixed, pixel_filter, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+    """(r1 − r0, c1 − c0) bool: the pixels of the region that ``pixel_filter`` blends across a discontinuity (its
+    crossed pixels ``mixed`` grown by the filter's reach, read with that margin so regions agree)."""
+    m = pixel_filter.reach
+    (r0, r1), (c0, c1) = rows, cols
+    grown = pixel_filter.filtered(mixed.rows(r0 - m, r1 + m, cols=(c0 - m, c1 + m)))
+    return grown[m:m + r1 - r0, m:m + c1 - c0]
+
+
+def _pixel_means(model, window, width, height, spp, t, corner, mask, max_points, nodes=None) -> np.ndarray:
     """(M, C) float32 means of ``spp`` points in each of the M pixels ``mask`` (h, w) marks; its first pixel is
-    ``corner`` (row, column) of the ``width × height`` render of ``window``."""
+    ``corner`` (row, column) of the ``width × height`` render of ``window``. ``nodes``: (offsets (spp, 2) from the
+    pixel's corner, weights (spp,)) of a filter's quadrature instead of ``pixel_offsets(spp)`` averaged."""
     rows, cols = np.nonzero(mask)
     x0, y0, x1, y1 = window
-    off = pixel_offsets(spp)
+    off = pixel_offsets(spp) if nodes is None else nodes[0]
     px = x0 + (corner[1] + cols[:, None] + off[None, :, 0]) * ((x1 - x0) / width)
     py = y0 + (corner[0] + rows[:, None] + off[None, :, 1]) * ((y1 - y0) / height)
     xy = np.stack([px.ravel(), py.ravel()], axis=1)
@@ -155,7 +217,10 @@ def _pixel_means(model, window, width, height, spp, t, corner, mask, max_points)
     for i in range(0, len(xy), step):
         pts = torch.from_numpy(xy[i:i + step]).to(device)
         out.append((model(pts, t) if t is not None else model(pts)).float().cpu().numpy())
-    return np.concatenate(out).reshape(len(rows), spp, -1).mean(axis=1)
+    values = np.concatenate(out).reshape(len(rows), spp, -1)
+    if nodes is None:
+        return values.mean(axis=1)
+    return np.einsum("mkc,k->mc", values, nodes[1].astype(np.float32))
 
 
 def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_POINTS) -> np.ndarray:
@@ -167,10 +232,11 @@ def values_at(model, xy: np.ndarray, *, device: str = "cpu", block: int = MAX_PO
     return np.concatenate(out)
 
 
-def render(model, width: int, height: int, window=None, *, spp: int = 1, t=None, edge_spp: int = 0) -> np.ndarray:
+def render(model, width: int, height: int, window=None, *, spp: int = 1, t=None, edge_spp: int = 0,
+           pixel_filter=None) -> np.ndarray:
     """Render into memory: (height, width, C) float32. For huge outputs use ``dfc.render_file.write_render``."""
     return render_region(model, width, height, window, rows=(0, height), cols=(0, width), spp=spp, t=t,
-                         edge_spp=edge_spp)
+                         edge_spp=edge_spp, pixel_filter=pixel_filter)
 
 
 DEFAULT_SIDE = (256, 4096)

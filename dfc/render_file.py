@@ -36,7 +36,7 @@ def is_hdr(model) -> bool:
 
 def write_render(model, output: str, size: tuple[int, int], window, *, spp: int = 1, half: bool = True, t=None,
                  workers: int = 1, source=None, devices: list[str] | None = None, callback=None,
-                 tiled: bool | None = None, edge_spp: int = 0) -> str:
+                 tiled: bool | None = None, edge_spp: int = 0, pixel_filter: str | None = None) -> str:
     """Render ``window`` of ``model`` at ``size`` (width, height) into ``output`` (.exr or .png); return the layout
     written: ``"tiled"`` or ``"scanline"``.
 
@@ -46,6 +46,7 @@ def write_render(model, output: str, size: tuple[int, int], window, *, spp: int 
         path each worker loads, on ``devices`` in turn (default ``["cpu"]``)
     callback : ``callback(done, total)`` after each region written
     edge_spp : points averaged in the pixels a discontinuity crosses (``dfc.render.render_region``)
+    pixel_filter : spec string of the output's pixel filter, instead of ``edge_spp`` (``dfc.render.render_region``)
     Raises ``InputError`` for sizes a format cannot hold, ``DfcError`` when a worker dies.
     """
     width, height = size
@@ -62,7 +63,7 @@ def write_render(model, output: str, size: tuple[int, int], window, *, spp: int 
     if tiled is None:
         tiled = width * height > TILED_PIXELS or width > MAX_IMAGE_SIDE
     tiled = tiled and not png
-    spec = (width, height, tuple(float(v) for v in window), spp, t, half, edge_spp)
+    spec = (width, height, tuple(float(v) for v in window), spp, t, half, edge_spp, pixel_filter)
     if tiled:
         writer = ExrTileWriter(output, width, height, channels, half=half)
         regions = [(ty, tx, y0, y1, x0, x1) for tx, ty, x0, y0, x1, y1 in writer.tiles()]
@@ -90,10 +91,10 @@ def write_render(model, output: str, size: tuple[int, int], window, *, spp: int 
 def _render(model, spec, region, mixed):
     """One region's result: compressed tile data (tiled spec) or the rows' pixels (h, width, C) float32.
     ``mixed``: the render's ``EdgeMask`` (``_edge_mask``)."""
-    width, height, window, spp, t, half, edge_spp, *order = spec
+    width, height, window, spp, t, half, edge_spp, pixel_filter, *order = spec
     _, _, y0, y1, x0, x1 = region
     block = render_region(model, width, height, window, rows=(y0, y1), cols=(x0, x1), spp=spp, t=t,
-                          edge_spp=edge_spp, mixed=mixed)
+                          edge_spp=edge_spp, mixed=mixed, pixel_filter=pixel_filter)
     return tile_chunk(block, order[0], half) if order else block
 
 
@@ -102,8 +103,9 @@ def _edge_mask(model, spec):
     region), else None."""
     from .geometry.pixels import EdgeMask
 
-    width, height, window, spp, _, _, edge_spp, *_ = spec
-    return EdgeMask(model.field.mesh, height, width, window) if edge_spp > spp else None
+    width, height, window, spp, _, _, edge_spp, pixel_filter, *_ = spec
+    blends = pixel_filter is not None and pixel_filter != "point" or pixel_filter is None and edge_spp > spp
+    return EdgeMask(model.field.mesh, height, width, window) if blends else None
 
 
 _MODEL = None

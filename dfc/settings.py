@@ -21,7 +21,7 @@ import math
 import numbers
 from dataclasses import dataclass, field, fields, replace
 
-from .errors import SettingsError
+from .errors import InputError, SettingsError
 
 __all__ = ["EncodeSettings", "FitSettings", "LOSSES", "MeshSettings", "RunSettings", "StorageSettings",
            "FEATURE_CODINGS"]
@@ -103,7 +103,9 @@ class FitSettings:
     ``dfc.codec.default_steps``) of ``batch_size`` samples (≥ 1), ``dim`` feature channels per vertex (1..64), a
     decoder of ``layers`` hidden layers (≥ 1) of ``hidden`` units (≥ 1), the last ``qat_steps`` steps (≥ 0; None:
     a tenth) quantisation-aware, ``loss`` (one of ``LOSSES``; "auto": log-MSE for HDR values), ``seed`` (an integer:
-    features, decoder and sampling), torch ``device`` (a name such as "cpu" or "cuda:1")."""
+    features, decoder and sampling), torch ``device`` (a name such as "cpu" or "cuda:1"), ``pixel_filter`` (images
+    read whole: the filter that made the pixels, a ``dfc.pixel_filter.parse`` spec, or "auto": detected from the
+    pixels, ``dfc.pixel_model``; ``dfc.codec.encode_image`` resolves it and hands the fit the filter itself)."""
 
     steps: int | None = None
     batch_size: int = 1 << 14
@@ -114,6 +116,7 @@ class FitSettings:
     loss: str = "auto"
     seed: int = 0
     device: str = "cpu"
+    pixel_filter: str = "auto"
 
     def __post_init__(self):
         _integer(self, "steps", 1, optional=True)
@@ -126,6 +129,13 @@ class FitSettings:
         _integer(self, "seed", None)
         if not isinstance(self.device, str) or not self.device:
             raise SettingsError(f"device must be a torch device name such as 'cpu' or 'cuda:1', got {self.device!r}")
+        if self.pixel_filter != "auto":
+            from .pixel_filter import parse
+
+            try:
+                parse(self.pixel_filter)
+            except InputError as e:
+                raise SettingsError(str(e)) from None
 
 
 @dataclass(frozen=True)

@@ -1,6 +1,6 @@
 """Write a Helmholtz FEM solution with a sound-hard barrier: ``helmholtz.vtu`` and its barrier ``helmholtz.json``.
 
-    python samples/make_helmholtz.py [-o DIR] [--n 256] [--k 40]
+    python samples/make_helmholtz.py [-o DIR] [--n 256] [--k 40] [--peak 1]
 
 Solves ``−Δu − k² u = f`` on the unit square (y down) with scikit-fem, P1 elements on an ``n × n`` grid of
 squares split into triangles:
@@ -11,7 +11,8 @@ squares split into triangles:
   segment are duplicated and the elements on its right take the copies, so the mesh is cut there and the
   solution is genuinely discontinuous across it.
 
-The solution is complex; it is scaled so that max |u| = 1 and written as the two real point-data arrays
+The solution is complex; it is scaled so that max |u| = ``--peak`` (default 1; physical units are arbitrary, e.g.
+``--n 160 --k 35 --peak 4e-4`` gives values of order 1e-4) and written as the two real point-data arrays
 ``p.re`` and ``p.im`` (VTK XML has no complex type; dfc reads the pair as the channels ``p.re``, ``p.im``, exactly
 as it reads a complex array ``p`` in a ``meshio.Mesh``). Needs ``scikit-fem`` and ``meshio``
 (``pip install -e '.[samples]'``). The default takes a few seconds and writes about 2.4 MB (``--n 512``: 9.7 MB, 30 s).
@@ -85,12 +86,14 @@ def main() -> None:
     ap.add_argument("-o", "--out", default=".", help="output directory")
     ap.add_argument("--n", type=int, default=256, help="grid squares per side (divisible by 4)")
     ap.add_argument("--k", type=float, default=40.0, help="wavenumber")
+    ap.add_argument("--peak", type=float, default=1.0, help="max |u| of the written solution")
     args = ap.parse_args()
     import meshio
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     points, triangles, u = solve(args.n, args.k)
+    u = u * args.peak
     mesh = meshio.Mesh(np.c_[points, np.zeros(len(points))], [("triangle", triangles)],
                        point_data={"p.re": u.real, "p.im": u.imag})
     meshio.write(out / "helmholtz.vtu", mesh, binary=True)

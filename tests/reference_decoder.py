@@ -10,6 +10,7 @@ Usage::
     field = ReferenceField.from_bytes(blob)
     values = field(xy)              # (N, C) float64, xy (N, 2) in domain units
     values = field(xy, t=0.5)       # fields with several time slices
+    pixel = field.pixel(cx, cy)     # (C,) the pixel centred there, filtered as header pixel_filter says (D §5.1)
 """
 
 from __future__ import annotations
@@ -238,7 +239,24 @@ class ReferenceField:
         if bank.shape[1] != field.n_rows:
             raise ValueError(f"the bank has {bank.shape[1]} rows, the layout needs {field.n_rows}")
         field.bank = bank.astype(np.float64)
+        field.pixel_filter = _pixel_filter(header.get("pixel_filter", "box"))
         return field
+
+    def pixel(self, cx: float, cy: float, n: int = 64) -> np.ndarray:
+        """(C,) the pixel centred at (cx, cy) under the header's pixel filter (D §5.1), the integral taken by the
+        midpoint rule on n × n points over the support (``box:N``: its N × N points; ``point``: the centre)."""
+        name, param, kernel, radius = self.pixel_filter
+        pw, ph = self.header["pixel_size"]
+        if name == "point":
+            return self(np.array([[cx, cy]]))[0]
+        if name == "box" and param is not None:
+            n = int(param)
+        u = (np.arange(n) + 0.5) / n * 2 * radius - radius
+        w = np.ones(n) if name == "box" else kernel(u)
+        X, Y = np.meshgrid(cx + u * pw, cy + u * ph)
+        values = self(self.clamp(np.stack([X.ravel(), Y.ravel()], axis=1)))
+        weights = np.outer(w, w).ravel()
+        return weights @ values / weights.sum()
 
     def row_graph(self) -> tuple[list[list[int]], np.ndarray]:
         """Neighbour rows of every row and the row classes (D §6.5)."""
@@ -426,7 +444,38 @@ class ReferenceField:
             z = z @ self.mlp[f"layers.{i}.weight"].T + self.mlp[f"layers.{i}.bias"]
             if i < n_layers - 1:
                 z = act(z)
-        return np.expm1(z) if self.header["value_transform"] == "log" else z
+        transform = self.header["value_transform"]
+        if transform == "affine":                                    # D §5: offset + scale · y, product first
+            return np.asarray(self.header["value_offset"], np.float64) + \
+                np.asarray(self.header["value_scale"], np.float64) * z
+        return np.expm1(z) if transform == "log" else z
+
+
+def _pixel_filter(spec: str):
+    """(name, parameter or None, k(u), support radius) of a ``pixel_filter`` string (D §5.1); ValueError if invalid."""
+    name, _, raw = spec.partition(":")
+    param = float(raw) if raw else {"gaussian": 0.5, "blackman-harris": 1.5}.get(name)
+    ranges = {"box": (1, 64), "gaussian": (0, 8), "blackman-harris": (0, 16)}
+    if name not in ("point", "box", "tent", "gaussian", "blackman-harris", "mitchell") or (
+            raw and (name not in ranges or not ranges[name][0] <= param <= ranges[name][1] or param == 0
+                     or (name == "box" and not param.is_integer()))):
+        raise ValueError(f"pixel_filter {spec!r} is not a filter of D §5.1")
+    b = c = 1 / 3
+    kernels = {
+        "point": (lambda u: np.ones_like(u), 0.0),
+        "box": (lambda u: np.ones_like(u), 0.5),
+        "tent": (lambda u: 1 - np.abs(u), 1.0),
+        "gaussian": (lambda u: np.maximum(0, np.exp(-u**2 / (2 * param**2)) - np.exp(-(4 * param)**2 / (2 * param**2))),
+                     4 * (param or 0)),
+        "blackman-harris": (lambda u: 0.35875 - 0.48829 * np.cos(2 * np.pi * (u / (2 * param) + 0.5))
+                            + 0.14128 * np.cos(4 * np.pi * (u / (2 * param) + 0.5))
+                            - 0.01168 * np.cos(6 * np.pi * (u / (2 * param) + 0.5)), param or 0),
+        "mitchell": (lambda u: np.where(np.abs(u) < 1, (12 - 9 * b - 6 * c) * np.abs(u)**3 + (-18 + 12 * b + 6 * c) * u**2
+                                        + (6 - 2 * b), (-b - 6 * c) * np.abs(u)**3 + (6 * b + 30 * c) * u**2
+                                        + (-12 * b - 48 * c) * np.abs(u) + (8 * b + 24 * c)) / 6, 2.0),
+    }
+    kernel, radius = kernels[name]
+    return name, param, kernel, radius
 
 
 def _bernstein(c: np.ndarray, t: np.ndarray) -> np.ndarray:

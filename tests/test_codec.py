@@ -106,7 +106,8 @@ def test_encode_reports_what_the_file_decodes_to(small_encode):
     image, blob, report = small_encode
     model = loads(blob)
     assert model.header["pixel_size"] == [1.0, 1.0] and default_edge_spp(model, 64, 64) == EDGE_SPP
-    err = np.mean((render(model, 64, 64, edge_spp=EDGE_SPP).astype(np.float64) - image) ** 2)
+    assert model.header["pixel_filter"] == report.pixel_filter == "box:2"  # the raster's 2 x 2 sub-samples, found
+    err = np.mean((render(model, 64, 64, pixel_filter="box:2").astype(np.float64) - image) ** 2)
     assert report.psnr == pytest.approx(10 * np.log10(1.0 / err), abs=1e-6)
     assert report.total_bytes == len(blob)
     assert sum(report.chunk_bytes.values()) + 16 == len(blob)
@@ -130,7 +131,7 @@ def test_refinement_splits_where_the_error_is_and_reports_the_refined_file(scene
     model, coarse = loads(refined_blob), loads(blob)
     assert coarse.field.mesh.n_triangles < refined.n_triangles == model.field.mesh.n_triangles
     assert refined.n_triangles <= coarse.field.mesh.n_triangles * (1 + 3 * settings.refine_fraction)
-    err = np.mean((render(model, 64, 64, edge_spp=EDGE_SPP).astype(np.float64) - image) ** 2)
+    err = np.mean((render(model, 64, 64, pixel_filter=model.header["pixel_filter"]).astype(np.float64) - image) ** 2)
     assert refined.psnr == pytest.approx(10 * np.log10(1.0 / err), abs=1e-6)
     assert refined.psnr > report.psnr  # 60 more steps on a finer mesh, started from the first fit
     assert "refine_s" in refined.seconds
@@ -195,20 +196,23 @@ def test_hdr_report_is_tone_mapped_and_the_progress_agrees(scene, one_thread):
     """HDR images are measured on x / (1 + x) with data range 1, by the summary and by the fit's progress alike."""
     from dfc.metrics import QualityScale
 
-    image = scene.render(48, 48) * 40.0  # up to 40: HDR
-    curves = check_domain(scene.curves, 48, 48, fit=True)
+    from dfc.bench.scenes import get_scene
+
+    hdr = get_scene("hdr")  # light up to about 80, peaks far above the mean (times 40 would only be another unit)
+    image = hdr.render(48, 48)
+    curves = check_domain(hdr.curves, 48, 48, fit=True)
     seen = []
     blob, report = encode_image(image, curves, EncodeSettings(steps=120, batch_size=2048, max_triangles=300),
                                 callback=lambda step, loss, psnr: seen.append(float(psnr)))
     assert report.tonemapped and report.data_range == 1.0
     model = loads(blob)  # measured as dfc decode renders it at the input's size: anti-aliased
     assert default_edge_spp(model, 48, 48) == EDGE_SPP
-    decoded = render(model, 48, 48, edge_spp=EDGE_SPP).astype(np.float64)
+    decoded = render(model, 48, 48, pixel_filter=model.header["pixel_filter"]).astype(np.float64)
     tm = image / (1 + image), np.maximum(decoded, 0) / (1 + np.maximum(decoded, 0))
     assert report.psnr == pytest.approx(10 * np.log10(1.0 / np.mean((tm[0] - tm[1]) ** 2)), abs=1e-6)
     assert report.psnr == pytest.approx(QualityScale(1.0, tonemap=True).psnr(image, decoded), abs=1e-9)
     # the batch PSNR of the last steps (pixels no curve crosses) and the file's PSNR (every pixel) on one scale;
-    # with the value span (40) as the bar's data range they would differ by 20 log10(40) = 32 dB
+    # with the value span (about 80) as the bar's data range they would differ by 20 log10(80) = 38 dB
     assert abs(_last_batch_psnr(seen) - report.psnr) < 6.0
 
 

@@ -48,7 +48,9 @@ def test_quality_scale_ldr_hdr_physical():
     from dfc.metrics import QualityScale, quality_scale
 
     assert quality_scale(np.array([0.0, 0.4, 1.0])) == QualityScale(1.0, tonemap=False)
-    assert quality_scale(np.array([0.0, 0.5, 1000.0])) == QualityScale(1.0, tonemap=True)
+    assert quality_scale(np.array([0.0, 0.5, 0.2, 0.3, 0.1, 0.4, 0.3, 0.2, 0.1, 1000.0])) == QualityScale(1.0, tonemap=True)
+    # above 1 without a peak far above the mean (an LDR image in other units): the span, not tone-mapped
+    assert quality_scale(np.array([0.0, 500.0, 1000.0])) == QualityScale(1000.0, tonemap=False)
     assert quality_scale(np.array([1e-3, 3e-3]), physical=True) == QualityScale(pytest.approx(2e-3), tonemap=False)
     assert quality_scale(np.array([-5.0, 20.0]), physical=True).data_range == 25.0
 

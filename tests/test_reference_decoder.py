@@ -215,7 +215,7 @@ def test_raw_mesh_encoding_agrees():
     _agree(model, ref, np.concatenate([_random(ref, 1000, 8), _curve_points(ref, (0.5,))[0]]))
 
 
-@pytest.mark.parametrize("name", ["tiny", "tiny_coded"])
+@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units"])
 def test_golden_tiny_file_agrees(name):
     blob = (GOLDEN / f"{name}.dfield").read_bytes()
     model = from_contents(decode_dfield(blob))
@@ -225,6 +225,22 @@ def test_golden_tiny_file_agrees(name):
     assert ref.bank.sum() == pytest.approx(expect["features_sum"], rel=1e-9)
     xy = np.concatenate([_random(ref, 2000, 7), _curve_points(ref, (0.4,))[0]])
     _agree(model, ref, xy)
+
+
+def test_golden_units_file_maps_values():
+    """content 1.2: value_transform "affine" returns offset + scale · y per channel, in binary64, where y is what
+    the same chunks decode to with the identity transform."""
+    units = (GOLDEN / "tiny_units.dfield").read_bytes()
+    ref, ref_plain = ReferenceField.from_bytes(units), ReferenceField.from_bytes(units)
+    ref_plain.header = {**ref_plain.header, "value_transform": "identity"}
+    xy = _random(ref, 500, 3)
+    y = ref_plain(xy)
+    np.testing.assert_array_equal(ref(xy), np.array([1e6, -3e-5, 0.5]) + np.array([1e-3, 2e-9, 4.0]) * y)
+    model = from_contents(decode_dfield(units))
+    with torch.no_grad():
+        got = model(torch.from_numpy(xy)).numpy()
+    assert got.dtype == np.float64 and np.ptp(got[:, 0]) > 1e-4  # the variation survives the offset
+    assert np.all(np.abs(got - ref(xy)) <= ATOL * np.array([1e-3, 2e-9, 4.0]))
 
 
 def test_spec_oneblob_example():

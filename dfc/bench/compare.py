@@ -52,7 +52,7 @@ import torch
 from torch import nn
 
 from ..errors import InputError
-from ..metrics import QualityScale, quality_scale
+from ..metrics import QualityScale, is_hdr, quality_scale
 from ..render import window_shape, zoom_window
 from ..train.fit import IMAGE_STEPS
 from ..train.losses import auto_loss
@@ -190,7 +190,7 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     enc = EncodeSettings(max_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
                          steps=settings.steps, batch_size=settings.batch_size, seed=settings.seed,
                          device=settings.device)
-    image = Image(pixels, list(channels), hdr=float(pixels.max()) > 1.0)
+    image = Image(pixels, list(channels), hdr=is_hdr(pixels))
     every = max(1, settings.steps // 10)
 
     def callback(step, loss, batch_psnr):
@@ -440,7 +440,7 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
         raise InputError(f"probes must be points inside the domain {domain}, got {probes.tolist()}")
     if len(kinds) != len(probes):
         raise InputError(f"expected one kind per probe, got {len(kinds)} for {len(probes)}")
-    hdr = float(pixels.max()) > 1.0
+    hdr = is_hdr(pixels)
     methods = methods_for(settings, hdr)
     scale = quality_scale(pixels)
     H, W = pixels.shape[:2]

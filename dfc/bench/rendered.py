@@ -2,7 +2,8 @@
 
 A raster is exact only at 1×; a 3D scene can be rendered again at any zoom. ``MitsubaReference`` renders each
 window the comparison measures with Mitsuba itself (``dfc.io.mitsuba.render_window``: the film scaled up with a crop
-window, a box pixel filter, as every method's pixels are box-filtered), at ``spp`` samples per pixel split into two
+window, a box pixel filter by default, as every method's pixels are box-filtered, or ``pixel_filter``: a Gaussian,
+tent or Mitchell reconstruction filter, ``dfc.io.mitsuba.rfilter_plugin``), at ``spp`` samples per pixel split into two
 independent halves of different seeds: their mean is the reference, their difference estimates the reference's own
 error (``dfc.bench.compare.HALVES_DB``), reported beside the methods so that a score near it reads as "limited by
 the reference's noise".
@@ -30,7 +31,6 @@ REFERENCE_SPP = 256
 """Default samples per pixel of the references (and of the input when rendered here). Each reference is two
 independent halves whose difference estimates its own PSNR, the ceiling of any method measured against it
 (docs/scenes.md)."""
-BOX = {"type": "box"}
 
 
 def is_scene_file(name: str) -> bool:
@@ -47,12 +47,16 @@ class MitsubaReference:
 
     square_pixels = True
 
-    def __init__(self, scene, path: str | Path, spp: int = REFERENCE_SPP, *, sensor: int = 0, seed: int = 1):
+    def __init__(self, scene, path: str | Path, spp: int = REFERENCE_SPP, *, sensor: int = 0, seed: int = 1,
+                 pixel_filter: str = "box"):
+        from ..io.mitsuba import rfilter_plugin
+
         if spp < 2:
             raise InputError(f"a Mitsuba reference needs at least 2 samples per pixel (two halves), got {spp}")
         self.scene, self.path, self.spp, self.sensor = scene, str(path), int(spp), int(sensor)
         self.seed = int(seed)
-        self.label = f"Mitsuba renders of each window of {Path(path).name}, {self.spp} spp, box filter"
+        self.rfilter = rfilter_plugin(pixel_filter)
+        self.label = f"Mitsuba renders of each window of {Path(path).name}, {self.spp} spp, {pixel_filter} filter"
 
     def window(self, window, width: int, height: int, spp: int | None = None):
         from ..io.mitsuba import render_window
@@ -60,7 +64,7 @@ class MitsubaReference:
         halves = []
         for _ in range(2):
             halves.append(render_window(self.scene, window, width, height, self.spp // 2, sensor=self.sensor,
-                                        seed=self.seed, rfilter=BOX))
+                                        seed=self.seed, rfilter=self.rfilter))
             self.seed += 1
         a, b = halves
         return (0.5 * (a + b)).astype(np.float32), (a, b)
@@ -76,7 +80,7 @@ def _check_scaled(w: int, h: int, W: int, H: int, path, what: str) -> None:
 
 def mitsuba_inputs(path: str | Path, settings, *, pixels: np.ndarray | None = None, channels=None, curves=None,
                    probes=None, spp: int = REFERENCE_SPP, sensor: int = 0,
-                   progress: Callable[[str], None] | None = None) -> dict:
+                   progress: Callable[[str], None] | None = None, pixel_filter: str = "box") -> dict:
     """The keyword arguments ``run_bench`` gets for the Mitsuba scene ``path`` (module docstring).
 
     settings : ``BenchSettings`` (``size``: longer side of the input rendered here, default the film's)
@@ -84,8 +88,10 @@ def mitsuba_inputs(path: str | Path, settings, *, pixels: np.ndarray | None = No
         ratio); curves : its curves over the film's domain instead of extracting them
     probes : zoom centres in film pixels (default ``dfc.bench.probes.labelled_probes`` of the curves)
     spp : samples per pixel of every Mitsuba render (the input rendered here with seed 0, the references after)
+    pixel_filter : the reconstruction filter of every render made here, a dfc spec Mitsuba has (``box``,
+        ``gaussian[:S]``, ``tent``, ``mitchell``; ``dfc.io.mitsuba.rfilter_plugin``), stated in the labels
     """
-    from ..io.mitsuba import Camera, load_scene, perspective_sensor, render_window
+    from ..io.mitsuba import Camera, load_scene, perspective_sensor, render_window, rfilter_plugin
     from .compare import HALVES_DB
     from .probes import labelled_probes
 
@@ -106,13 +112,14 @@ def mitsuba_inputs(path: str | Path, settings, *, pixels: np.ndarray | None = No
         w, h = max(1, round(W * longer / max(W, H))), max(1, round(H * longer / max(W, H)))
         _check_scaled(w, h, W, H, path, f"--size {longer} makes")
         progress(f"{Path(path).name}: rendering the {w}x{h} input at {spp} spp")
-        pixels = render_window(scene, domain, w, h, spp, sensor=sensor, seed=0, rfilter=BOX)
+        pixels = render_window(scene, domain, w, h, spp, sensor=sensor, seed=0,
+                               rfilter=rfilter_plugin(pixel_filter))
         channels = ["R", "G", "B"]  # window_sensor's film: pixel_format rgb
     h, w = pixels.shape[:2]
     _check_scaled(w, h, W, H, path, "the render is")
     if channels is None or len(channels) != pixels.shape[2]:
         raise ValueError(f"expected one channel name per channel of the render's {pixels.shape[2]}, got {channels}")
-    reference = MitsubaReference(scene, path, spp, sensor=sensor)
+    reference = MitsubaReference(scene, path, spp, sensor=sensor, pixel_filter=pixel_filter)
     progress(f"{Path(path).name}: rendering the {w}x{h} 1x truth at {spp} spp")
     truth, halves = reference.window(domain, w, h)
     if probes is None or len(probes) == 0:
@@ -121,5 +128,5 @@ def mitsuba_inputs(path: str | Path, settings, *, pixels: np.ndarray | None = No
         points, kinds = np.asarray(probes, dtype=np.float64), None
     return {"pixels": pixels, "curves": curves, "channels": list(channels), "probes": points, "probe_kinds": kinds,
             "reference": reference, "truth": truth,
-            "truth_label": f"an independent Mitsuba render of {w}x{h} at {spp} spp (box filter)",
+            "truth_label": f"an independent Mitsuba render of {w}x{h} at {spp} spp ({pixel_filter} filter)",
             "truth_psnr": quality_scale(pixels).psnr(*halves) + HALVES_DB, "name": f"Mitsuba scene {Path(path).name}"}

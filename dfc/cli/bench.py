@@ -55,6 +55,9 @@ def _budgets(ctx, param, value):
               help="Mitsuba scenes: samples per pixel of every render (the references, the 1x truth, the input "
               "when rendered here); each reference is two independent halves, whose difference estimates its own "
               "PSNR (the table's 'reference itself' row).")
+@click.option("--scene-filter", default="box", show_default=True, metavar="FILTER",
+              help="Mitsuba scene: the pixel filter of every render made (input, 1x truth, zoom references): box or "
+                   "gaussian[:STDDEV] (Mitsuba's default, 0.5), tent, mitchell.")
 @click.option("--sensor", type=click.IntRange(min=0), default=0, show_default=True,
               help="Mitsuba scenes: which sensor (a perspective camera) renders, by index.")
 @click.option("--solve", "solve_path", type=click.Path(exists=True, dir_okay=False),
@@ -106,7 +109,7 @@ def _budgets(ctx, param, value):
 @threads_option
 @json_option
 @quiet_option
-def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_scenes, probes, output, zooms,
+def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, list_scenes, probes, output, zooms,
             methods, target_bytes, rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size,
             render, spp, max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -142,8 +145,8 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
     mitsuba = scene is not None and is_scene_file(scene)
     if sum(v is not None for v in (None if mitsuba else input_path, scene, solve_path)) != 1:
         raise click.UsageError("give one of INPUT (with --curves), --scene NAME|SCENE.xml and --solve SCENE")
-    if not mitsuba and (scene_spp != 256 or sensor != 0):
-        raise click.UsageError("--scene-spp and --sensor apply to a Mitsuba scene (--scene SCENE.xml)")
+    if not mitsuba and (scene_spp != 256 or sensor != 0 or scene_filter != "box"):
+        raise click.UsageError("--scene-spp, --scene-filter and --sensor apply to a Mitsuba scene (--scene SCENE.xml)")
     if output is None:
         raise click.UsageError("missing option '-o' / '--output'")
     if solve_path is not None:
@@ -180,6 +183,7 @@ def command(input_path, curves_path, scene, scene_spp, sensor, solve_path, list_
     auto = curves_path == "auto"
     if mitsuba:
         inputs = _mitsuba_inputs(scene, input_path, None if auto else curves_path, settings, probes, scene_spp,
+                                 scene_filter,
                                  sensor, quiet, progress)
     elif scene is not None:
         from ..bench.scenes import get_scene
@@ -234,7 +238,8 @@ def _auto_curves(pixels, domain, progress):
                   source="auto")
 
 
-def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, sensor, quiet, progress) -> dict:
+def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, pixel_filter, sensor, quiet,
+                    progress) -> dict:
     """``run_bench``'s inputs for a Mitsuba scene (``dfc.bench.rendered.mitsuba_inputs``), with its render and
     curves when given."""
     from pathlib import Path
@@ -251,7 +256,7 @@ def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, senso
     curves = read_curves_checked(curves_path, quiet) if curves_path else None
     return mitsuba_inputs(scene, settings, pixels=None if image is None else image.pixels,
                           channels=None if image is None else image.channels, curves=curves, probes=probes, spp=spp,
-                          sensor=sensor, progress=progress)
+                          sensor=sensor, progress=progress, pixel_filter=pixel_filter)
 
 
 def _finish(table: str, output: str, json_path: str | None) -> None:

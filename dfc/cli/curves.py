@@ -72,7 +72,7 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
     from ..io.image import read_image
 
     try:
-        from ..geometry.sources.raster import RasterSettings, image_curves
+        from ..geometry.sources.raster import RasterSettings, image_curves_filtered
     except ImportError:
         raise ExtraError("finding curves in images needs scikit-image: pip install 'dfc[curves]'") from None
     image = read_image(path)
@@ -81,11 +81,12 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
     settings = RasterSettings(tolerance=o["tolerance"], **{k: o[k] for k in IMAGE_OPTIONS})
     progress("edges")
     try:
-        curves = image_curves(image.pixels, settings)
+        curves, pixel_filter, detection = image_curves_filtered(image.pixels, settings, o["pixel_filter"])
     except InputError as e:
         raise InputError(f"{path}: {e}") from None
+    stats["pixel_filter"] = str(pixel_filter) + (f" (auto: {detection.evidence()})" if detection else " (as given)")
     summary = {"width": image.width, "height": image.height, "channels": image.channels,
-               "settings": settings.to_dict()}
+               "settings": settings.to_dict(), "pixel_model": detection.to_dict() if detection else None}
 
     def draw(curves, preview):
         draw_curves(curves, preview, background=image.pixels, hdr=image.hdr)
@@ -94,7 +95,7 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
 
 
 SOURCES = (Source("Mitsuba 3 scene", _is_scene, _from_scene, SCENE_OPTIONS),
-           Source("image", _is_image, _from_image, IMAGE_OPTIONS))
+           Source("image", _is_image, _from_image, (*IMAGE_OPTIONS, "pixel_filter")))
 """Tried in order on the input path; the first that accepts it extracts the curves."""
 
 
@@ -140,6 +141,10 @@ def _source(path: Path, ctx: click.Context) -> Source:
                    "not a curve.")
 @click.option("--corner-angle", type=click.FloatRange(min=0.0, max=180.0, max_open=True), default=40.0,
               show_default=True, help="Image: turns sharper than this many degrees are corners.")
+@click.option("--pixel-filter", "pixel_filter", default="auto", show_default=True, metavar="FILTER",
+              help="Image: how its pixels were made (auto, point, box[:N], gaussian[:STDDEV], tent, "
+                   "blackman-harris[:WIDTH], mitchell): the sub-pixel step model's kernel; auto detects it along the "
+                   "curves found with the box, as dfc encode does.")
 @click.option("--preview", type=click.Path(dir_okay=False),
               help="Also draw the curves over the input (a scene: a flat-shaded picture of it) to this PNG.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),

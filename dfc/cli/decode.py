@@ -41,6 +41,9 @@ from .output import FORMAT_OPTION, check_time, output_format, plan_render, rende
 @click.option("--edge-spp", type=click.IntRange(0, 4096), default=None,
               help="Samples averaged in the pixels a discontinuity crosses (anti-aliasing; 0: off)  [default: 64 "
                    "at or below the resolution of the image the file was fitted to, else 0].")
+@click.option("--pixel-filter", "pixel_filter", metavar="FILTER",
+              help="Output pixel filter: point, box[:N], gaussian[:STDDEV], tent, blackman-harris[:WIDTH], mitchell "
+                   "[default: the file's on the input's grid, box when shrinking, point when enlarging].")
 @click.option("--float", "full_float", is_flag=True, help="Write 32-bit float EXR channels (default: half).")
 @click.option("--time", "t", type=float, help="Time to render, for a time-varying file [default: its first time].")
 @click.option("--frames", "n_frames", type=click.IntRange(min=1),
@@ -53,8 +56,8 @@ from .output import FORMAT_OPTION, check_time, output_format, plan_render, rende
 @threads_option
 @json_option
 @quiet_option
-def command(input_path, output, fmt, size, window, spp, edge_spp, full_float, t, n_frames, device, workers, json_path,
-            quiet):
+def command(input_path, output, fmt, size, window, spp, edge_spp, pixel_filter, full_float, t, n_frames, device, workers,
+            json_path, quiet):
     """Render IN (- reads standard input) to OUTPUT. Pixels sample the field at their centres
     (spec/conventions.md), so any size and any window of the domain can be rendered. Memory stays bounded for any
     size: EXR outputs above 4096 x 4096 pixels are written as tiled EXR tile by tile (up to 1048576 pixels per side),
@@ -62,12 +65,16 @@ def command(input_path, output, fmt, size, window, spp, edge_spp, full_float, t,
     and the estimated time are printed, and a render the disk cannot hold is refused. An existing OUTPUT is
     replaced, atomically, once the new file is complete.
 
-    At or below the resolution of the image the file was fitted to, pixels that a discontinuity crosses are
-    averaged over --edge-spp points, as the input's pixels were area averages (anti-aliasing); zoomed renders
-    keep the edges sharp. The output is the same for any --workers and tiling."""
+    On the grid of the image the file was fitted to, pixels near a discontinuity are filtered with the pixel filter
+    the encoder found in the input (header pixel_filter; box for older files), so the input's pixels come back;
+    smaller renders average each output pixel's area near the discontinuities (box), zoomed renders keep the
+    edges sharp (point). --pixel-filter or --edge-spp (box with that many points) override the rule. The output
+    is the same for any --workers and tiling."""
     from ..codec import load, loads
     from ..io.bands import MAX_BAND_SIDE
-    from ..render import check_window, default_edge_spp
+    from ..errors import InputError
+    from ..pixel_filter import parse
+    from ..render import check_window, default_pixel_filter
 
     if n_frames is not None and t is not None:
         raise click.UsageError("give either --time or --frames")
@@ -94,26 +101,37 @@ def command(input_path, output, fmt, size, window, spp, edge_spp, full_float, t,
         warn(f"the window {tuple(round(v, 6) for v in window)} lies entirely outside the domain "
              f"{tuple(round(v, 6) for v in domain)}: every pixel takes the value at the nearest border point", quiet)
     size = size or default_size(window, domain)
-    if edge_spp is None:
-        edge_spp = default_edge_spp(model, *size, window)
+    if pixel_filter is not None and edge_spp is not None:
+        raise click.UsageError("give either --pixel-filter or --edge-spp")
+    rule = "--pixel-filter"
+    if pixel_filter is not None:
+        try:
+            pixel_filter = str(parse(pixel_filter))
+        except InputError as e:
+            raise click.BadParameter(str(e), param_hint="'--pixel-filter'") from None
+    elif edge_spp is None:
+        pixel_filter, rule = default_pixel_filter(model, *size, window)
+    edge_spp = edge_spp or 0
     times = frame_times(model, n_frames) if pattern is not None else [check_time(model, t)]
     plan_render(model, output, size, window, spp=spp, fmt=fmt, half=not full_float, t=times[0], frames=len(times),
                 quiet=quiet)
     outputs = [pattern % k for k in range(len(times))] if pattern is not None else [output]
     for path, tk in zip(outputs, times):
         layout = render_to_file(model, path, size, window, spp=spp, half=not full_float, t=tk, quiet=quiet, fmt=fmt,
-                                workers=workers, source=input_path, devices=devices, edge_spp=edge_spp)
+                                workers=workers, source=input_path, devices=devices, edge_spp=edge_spp,
+                                pixel_filter=pixel_filter)
     err = stdout_taken(output, json_path)
+    used = f"pixel filter {pixel_filter} ({rule})" if pixel_filter else f"edge spp {edge_spp}"
     if pattern is None:
         layout_note = f" ({layout} EXR)" if fmt == "exr" else ""
         click.echo(f"wrote {shown(output)}: {size[0]}x{size[1]} of window {tuple(round(v, 6) for v in window)}"
-                   f"{layout_note}", err=err)
+                   f"{layout_note}, {used}", err=err)
     else:
         click.echo(f"wrote {len(times)} frames {outputs[0]} .. {outputs[-1]}: {size[0]}x{size[1]}, "
                    f"t = {times[0]:g} .. {times[-1]:g}", err=err)
     if json_path:
         write_json(json_path, {"outputs": outputs, "format": fmt, "size": list(size), "window": list(window),
-                               "spp": spp, "edge_spp": edge_spp, "layout": layout,
+                               "spp": spp, "edge_spp": edge_spp, "pixel_filter": pixel_filter, "layout": layout,
                                "times": None if times == [None] else times,
                                "bytes": None if output == "-" else [os.path.getsize(p) for p in outputs]})
 

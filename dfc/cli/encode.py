@@ -115,6 +115,10 @@ def _curves_arg(ctx, param, value):
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=FitSettings.seed, show_default=True,
               help="Seeds features, decoder and sampling.")
+@click.option("--pixel-filter", "pixel_filter", metavar="FILTER",
+              help="Image: how its pixels were made from the scene: auto, point, box[:N], gaussian[:STDDEV], tent, "
+                   "blackman-harris[:WIDTH] or mitchell; fitted and stored for the decoder  [default: auto, found in "
+                   "the pixels near the curves].")
 @click.option("--device", default=FitSettings.device, show_default=True,
               help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
@@ -158,7 +162,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
     from ..codec import default_steps
     from ..field.quantize import DEFAULT_FEATURE_BITS
 
-    settings = encode_settings(setting_options)
+    pixel_filter = setting_options["pixel_filter"]  # None: not given (auto)
+    settings = encode_settings({**setting_options, "pixel_filter": pixel_filter or "auto"})
     target_bytes, target_psnr, refine = settings.target_bytes, settings.target_psnr, settings.refine
     epoch_pixels, workers = settings.epoch_pixels, settings.workers
     if output != "-" and not output.lower().endswith(".dfield"):
@@ -176,6 +181,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             raise click.UsageError("--fields and --fem-sampling apply to FEM input")
         if kind != "samples" and reference_path:
             raise click.UsageError(f"--reference applies to sample sets, not {kind} input")
+        if pixel_filter is not None and kind != "image":
+            raise click.UsageError(f"--pixel-filter applies to images, not {kind} input")
         if curves_path == "auto" and kind != "image":
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
@@ -189,6 +196,9 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
                 raise click.UsageError(f"{name} applies to an image read whole (not out of core: --epoch-pixels, "
                                        "--workers, torchrun, EXR above 4096x4096)" if kind == "image" else
                                        f"{name} applies to image or FEM input, not {kind}")
+        if pixel_filter is not None and out_of_core:
+            raise click.UsageError("--pixel-filter applies to an image read whole, not out of core (--epoch-pixels, "
+                                   "--workers, torchrun, EXR above 4096x4096)")
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
@@ -202,7 +212,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
                                                              settings.batch_size))
         if curves_path == "auto":
-            curves, curves_info = _auto_curves(signal)
+            curves, curves_info = _auto_curves(signal, settings.pixel_filter)
         else:
             curves = read_curves_checked(curves_path, quiet)
         input_bytes = sum(os.path.getsize(p) for p in paths)
@@ -260,22 +270,24 @@ def encode_settings(options: dict):
         raise click.UsageError(message.replace(" or None,", ",")) from None
 
 
-def _auto_curves(image):
-    """``--curves auto``: the image's curves by the raster extractor at its defaults, and the record of that for the
-    file's encoder info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, counts)."""
+def _auto_curves(image, pixel_filter: str = "auto"):
+    """``--curves auto``: the image's curves by the raster extractor at its defaults with the encode's pixel filter
+    (``image_curves_filtered``: "auto" detects it as the encoder does), and the record of that for the file's encoder
+    info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, ``pixel_filter``, counts)."""
     from dataclasses import replace
 
     from ..errors import ExtraError
 
     try:
-        from ..geometry.sources.raster import RasterSettings, image_curves
+        from ..geometry.sources.raster import RasterSettings, image_curves_filtered
 
         extractor = RasterSettings()
-        curves = image_curves(image.pixels, extractor)
+        curves, used, _ = image_curves_filtered(image.pixels, extractor, pixel_filter)
     except ImportError:
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
     record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
-              "settings": extractor.to_dict(), "curves": curves.n_curves, "pieces": len(curves)}
+              "settings": extractor.to_dict(), "pixel_filter": str(used), "curves": curves.n_curves,
+              "pieces": len(curves)}
     return replace(curves, source="auto"), record
 
 
@@ -290,6 +302,8 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
                      "--preview P.png)")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
+    if report.units:
+        lines.append(report.units)
     scale = ("tone-mapped x/(1+x), " if report.tonemapped else "") + f"data range {report.data_range:.4g}"
     if kind == "samples" and report.heldout:
         lines.append(f"PSNR of the decoded file against {report.heldout} held-out samples (left out of the fit): "
@@ -304,6 +318,9 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
         lines.append(f"PSNR of the decoded file against the input: {report.psnr:.2f} dB ({scale})")
     if report.target_psnr is not None:
         lines[-1] += f"; target {report.target_psnr:g} dB"
+    if report.pixel_filter is not None:
+        lines.append(f"pixel filter: {report.pixel_filter} (" + (f"auto: {report.pixel_evidence}" if
+                     report.pixel_evidence else "as given") + "; stored for the decoder)")
     if report.psnr_reference is not None:
         lines.append(f"PSNR of the decoded file against the reference {reference_path}: {report.psnr_reference:.2f} dB "
                      f"({scale})")

@@ -86,10 +86,11 @@ def estimate_seconds(model, size: tuple[int, int], window, *, spp: int, t) -> fl
 
 
 def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: int, half: bool, t, quiet: bool,
-                   fmt: str | None = None, workers: int = 1, source=None, devices=None, edge_spp: int = 0) -> str:
+                   fmt: str | None = None, workers: int = 1, source=None, devices=None, edge_spp: int = 0,
+                   pixel_filter: str | None = None) -> str:
     """Render ``window`` at ``size`` into ``output`` (.exr: half or float, tiled when large; .png: 8-bit sRGB,
     tone-mapped for HDR files; ``-``: standard output in ``fmt``), ``workers`` processes rendering regions of
-    ``source`` (``dfc.render_file.write_render``; ``edge_spp``: see ``dfc.render.render_region``). Memory stays
+    ``source`` (``dfc.render_file.write_render``; ``edge_spp``, ``pixel_filter``: see ``dfc.render.render_region``). Memory stays
     bounded; the file appears only when complete. Returns the layout written ("tiled" or "scanline")."""
     from ..render_file import write_render
 
@@ -100,7 +101,7 @@ def render_to_file(model, output: str, size: tuple[int, int], window, *, spp: in
             bar.update(1)
 
         return write_render(model, path, size, window, spp=spp, half=half, t=t, workers=workers, source=source,
-                            devices=devices, callback=callback, edge_spp=edge_spp)
+                            devices=devices, callback=callback, edge_spp=edge_spp, pixel_filter=pixel_filter)
 
 
 def _bytes(n: int) -> str:

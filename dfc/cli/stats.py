@@ -23,6 +23,8 @@ def file_stats(path) -> dict:
         "domain": header["domain"],
         "channels": header["channels"],
         "value_transform": header["value_transform"],
+        "value_map": ({"offset": header["value_offset"], "scale": header["value_scale"]}
+                      if header["value_transform"] == "affine" else None),
         "time_axis": None if times is None else {"slices": len(times), "first": times[0], "last": times[-1]},
         "mesh": {"vertices": m["vertices"], "triangles": m["triangles"], "discontinuous_vertices": mesh.n_disc_vertices,
                  "discontinuous_edges": m["disc_edges"], "curved_triangles": m["curves"],
@@ -58,6 +60,8 @@ def command(input_path, json_path, quiet):
         ("file", f"{s['file_bytes']} bytes, container {s['container_version']}, content {s['content_version']}"),
         ("domain", ", ".join(f"{v:g}" for v in s["domain"])),
         ("channels", f"{', '.join(s['channels'])} ({s['value_transform']})"),
+        *([("units", "value = offset + scale · output; offset " + ", ".join(map(repr, s["value_map"]["offset"])) +
+                    "; scale " + ", ".join(map(repr, s["value_map"]["scale"])))] if s["value_map"] else []),
         ("time axis", "none" if s["time_axis"] is None else
          f"{s['time_axis']['slices']} slices, t = {s['time_axis']['first']:g} .. {s['time_axis']['last']:g}"),
         ("vertices", m["vertices"]), ("triangles", m["triangles"]),

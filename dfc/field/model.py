@@ -7,6 +7,10 @@ Value transform. ``transform="identity"`` decodes the signal directly. ``transfo
 HDR signals: the MLP output ``y`` stands for ``log(1 + v)`` and the model returns ``v = exp(y) - 1``
 (so values are > -1). Losses are always computed on the returned signal values.
 
+Units. ``model.value_map`` (None, or a ``dfc.field.units.ValueMap``) maps the network's output to the data's
+units: ``offset + scale · y``, returned as float64 (an offset of 1e6 with a variation of 1e-3 does not fit float32).
+Fits run without it, on values normalised by it (``dfc.codec``); a file's ``value_transform: "affine"`` sets it.
+
 Quantised mode (quantisation-aware fine-tuning). Setting ``model.quantization =
 {"feature_bits": 8}`` registers ``torch.nn.utils.parametrize`` parametrisations, so that
 ``field.bank`` reads as ``fake_quantize(bank, 8)`` and every decoder weight and bias reads as
@@ -89,6 +93,7 @@ class FieldModel(nn.Module):
         self.decoder.mixed_precision = transform == "identity"  # bfloat16 on CUDA costs HDR fits PSNR (MLP notes)
         self.to(field.bank.device)
         self._quantization: dict | None = None
+        self.value_map = None
 
     # -- evaluation ---------------------------------------------------------------------------
     def features(self, xy: Tensor, t=None) -> Tensor:
@@ -96,7 +101,7 @@ class FieldModel(nn.Module):
         return self.field.features(xy, t)
 
     def forward(self, xy: Tensor, t=None, *, query: tuple[Tensor, Tensor] | None = None) -> Tensor:
-        """Signal values (N, C) float32 at positions xy (N, 2) in domain units.
+        """Signal values (N, C) float32 at positions xy (N, 2) in domain units (float64 with a ``value_map``).
 
         ``query`` : optional ``self.field.query(xy)`` computed beforehand — rows idx (N, k) int64 and
         weights w (N, k) float32 of the bank's single slice — so that training can reuse point
@@ -121,6 +126,8 @@ class FieldModel(nn.Module):
             if self.encoding is not None:
                 F = torch.cat([F, self.encoding(xy)], dim=1)
             y = self.decoder(F)
+        if self.value_map is not None:
+            return self.value_map.apply(y)
         return torch.expm1(y) if self.transform == "log" else y
 
     def render(self, width: int, height: int, window=None, *, spp: int = 1, t=None, edge_spp: int = 0):

@@ -3,7 +3,8 @@
 A *band source* has ``width``, ``height``, ``channels`` (names) and ``rows(y0, y1) -> (y1 - y0, W, C) float32``,
 rows going down in y (``spec/conventions.md``). ``ExrBands`` reads an OpenEXR file that way, scanline or tiled and
 any compression, through OpenEXR's ``InputFile``, which decodes only the chunks (scanline blocks or tiles) the rows
-touch; ``ArrayBands`` serves an array already in memory. ``band_ranges`` cuts the rows into bands aligned with the
+touch; ``ArrayBands`` serves an array already in memory; ``MappedBands`` serves another source's rows normalised by a
+``dfc.field.units.ValueMap`` (the units an encode fits in). ``band_ranges`` cuts the rows into bands aligned with the
 file's chunks, so that no chunk is decoded twice in one pass.
 
 Checks, each an ``InputError`` naming the file: damaged or truncated files (OpenEXR's ``isComplete`` at open, and any
@@ -26,7 +27,7 @@ import numpy as np
 from ..errors import InputError
 from .image import read_exr_header
 
-__all__ = ["BAND_BYTES", "MAX_BAND_SIDE", "ArrayBands", "ExrBands", "band_ranges", "open_bands"]
+__all__ = ["BAND_BYTES", "MAX_BAND_SIDE", "ArrayBands", "ExrBands", "MappedBands", "band_ranges", "open_bands"]
 
 MAX_BAND_SIDE = 1 << 20
 """Largest width or height read in bands (pixels); whole-image reads stop at ``dfc.io.image.MAX_IMAGE_SIDE``."""
@@ -70,6 +71,22 @@ class ArrayBands:
 
     def band_rows(self, target_bytes: int = BAND_BYTES) -> int:
         return max(1, target_bytes // (self.width * len(self.channels) * 4))
+
+
+class MappedBands:
+    """The band source ``source`` with its values normalised by ``value_map`` (``ValueMap.normalise``, float32)."""
+
+    def __init__(self, source, value_map):
+        self.base, self.value_map = source, value_map
+        self.width, self.height, self.channels = source.width, source.height, list(source.channels)
+        self.chunk_rows, self.source = getattr(source, "chunk_rows", 1), getattr(source, "source", "")
+
+    def rows(self, y0: int, y1: int) -> np.ndarray:
+        """(y1 - y0, W, C) float32: rows y0 .. y1 - 1, normalised."""
+        return self.value_map.normalise(self.base.rows(y0, y1))
+
+    def band_rows(self, target_bytes: int = BAND_BYTES) -> int:
+        return self.base.band_rows(target_bytes)
 
 
 class ExrBands:

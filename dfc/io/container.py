@@ -55,7 +55,7 @@ __all__ = [
 
 SIGNATURE = b"\x89DFL\r\n\x1a\n"
 CONTAINER_VERSION = (1, 1)
-CONTENT_VERSION = (1, 1)
+CONTENT_VERSION = (1, 2)
 MAX_FILE_BYTES = 2**30
 MAX_CHUNK = 2**30 - 1
 MAX_HEADER_JSON = 2**20
@@ -73,7 +73,8 @@ _FEAT_HEAD = struct.Struct("<IIHBx")
 _MLP_HEAD = struct.Struct("<II")
 _MLP_RECORD = struct.Struct("<60sI4I")
 _NAME = re.compile(r"[A-Za-z0-9_.]{1,60}")
-_TRANSFORMS = ("identity", "log")
+_TRANSFORMS = ("identity", "log", "affine")
+_VALUE_MAP_KEYS = ("value_offset", "value_scale")
 
 
 @dataclass
@@ -116,6 +117,7 @@ def _check_header(h, S: int) -> None:
         raise FormatError(f"HEAD: channels must be 1..{MAX_CHANNELS} distinct non-empty strings")
     if h["value_transform"] not in _TRANSFORMS:
         raise FormatError(f"HEAD: value_transform must be one of {_TRANSFORMS}")
+    _check_value_map(h)
     times = h["times"]
     if times is None:
         if S != 1:
@@ -127,8 +129,37 @@ def _check_header(h, S: int) -> None:
     if size is not None and not (isinstance(size, list) and len(size) == 2 and all(_is_number(v) and v > 0
                                                                                   for v in size)):
         raise FormatError("HEAD: pixel_size must be null or two positive finite numbers")
+    if "pixel_filter" in h:
+        _check_pixel_filter(h["pixel_filter"])
     if not isinstance(h["model"], dict) or not isinstance(h.get("encoder", {}), dict):
         raise FormatError("HEAD: model and encoder must be objects")
+
+
+def _check_pixel_filter(spec) -> None:
+    """Spec §5: ``pixel_filter`` is a filter spec string (``dfc.pixel_filter.parse``)."""
+    from ..errors import InputError
+    from ..pixel_filter import parse
+
+    try:
+        parse(spec)
+    except InputError as e:
+        raise FormatError(f"HEAD: pixel_filter: {e}") from None
+
+
+def _check_value_map(h) -> None:
+    """Spec §5: ``value_offset`` and ``value_scale`` (C finite numbers, scales > 0) with ``"affine"``, else absent."""
+    present = [k for k in _VALUE_MAP_KEYS if k in h]
+    if h["value_transform"] != "affine":
+        if present:
+            raise FormatError(f"HEAD: {present[0]} is only allowed with value_transform 'affine'")
+        return
+    n = len(h["channels"])
+    for key in _VALUE_MAP_KEYS:
+        v = h.get(key)
+        if not (isinstance(v, list) and len(v) == n and all(_is_number(x) for x in v)):
+            raise FormatError(f"HEAD: value_transform 'affine' needs {key}: {n} finite numbers, one per channel")
+    if not all(x > 0 for x in h["value_scale"]):
+        raise FormatError("HEAD: value_scale must be > 0")
 
 
 def _is_number(v) -> bool:

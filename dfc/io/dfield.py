@@ -14,6 +14,7 @@ from .. import __version__
 from ..errors import FormatError
 from ..field.model import FieldModel
 from ..field.quantize import FakeQuantizeWeights
+from ..field.units import ValueMap
 from ..settings import EncodeSettings
 from .container import DfieldContents, decode_dfield, encode_dfield, read_dfield
 
@@ -22,25 +23,35 @@ __all__ = ["encode_model", "encoder_info", "from_contents", "load", "loads", "st
 _ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
 
 
-def to_contents(model: FieldModel, encoder: dict | None = None, *,
-                pixel_size: tuple[float, float] | None = None) -> DfieldContents:
+def to_contents(model: FieldModel, encoder: dict | None = None, *, pixel_size: tuple[float, float] | None = None,
+                value_map=None, pixel_filter: str | None = None) -> DfieldContents:
     """The ``.dfield`` contents of a fitted ``FieldModel`` (quantised values when its quantised mode is on).
 
     encoder : free-form provenance stored in the header's ``encoder`` object (never needed to decode)
     pixel_size : (width, height) in domain units of a pixel of the raster the model was fitted to (header
         ``pixel_size``: decoders anti-alias at or below that resolution); None for other inputs
+    pixel_filter : spec string of the filter that made that raster's pixels (header ``pixel_filter``,
+        ``dfc.pixel_filter``); None: not stored
+    value_map : the ``dfc.field.units.ValueMap`` to store (default ``model.value_map``): the header's
+        ``value_transform`` is then "affine" with its ``value_offset`` and ``value_scale`` (identity models only)
     """
     config = model.config()
+    value_map = value_map if value_map is not None else model.value_map
+    if value_map is not None and config["transform"] != "identity":
+        raise ValueError(f"a value map needs the identity transform, the model has {config['transform']!r}")
     header = {
         "domain": [float(v) for v in model.field.mesh.domain],
         "channels": list(config["channels"]),
-        "value_transform": config["transform"],
+        "value_transform": config["transform"] if value_map is None else "affine",
+        **({} if value_map is None else value_map.header()),
         "times": config["times"],
         "model": {k: config[k] for k in _ARCH_KEYS},
         "encoder": dict(encoder or {}),
     }
     if pixel_size is not None:
         header["pixel_size"] = [float(v) for v in pixel_size]
+    if pixel_filter is not None:
+        header["pixel_filter"] = str(pixel_filter)
     with torch.no_grad():
         features = model.field.bank.detach().cpu().numpy().astype(np.float32)
         mlp = {}
@@ -68,9 +79,12 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldMode
     missing = [k for k in _ARCH_KEYS if k not in arch]
     if missing:
         raise FormatError(f"HEAD: model lacks {missing}")
-    config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": h["value_transform"], "channels": h["channels"],
-              "n_slices": int(contents.features.shape[0]), "times": h["times"]}
+    affine = h["value_transform"] == "affine"
+    config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": "identity" if affine else h["value_transform"],
+              "channels": h["channels"], "n_slices": int(contents.features.shape[0]), "times": h["times"]}
     model = FieldModel.from_config(contents.mesh, config, device=device)
+    if affine:
+        model.value_map = ValueMap(np.array(h["value_offset"], np.float64), np.array(h["value_scale"], np.float64))
     with torch.no_grad():
         bank = torch.from_numpy(np.ascontiguousarray(contents.features))
         if tuple(bank.shape) != tuple(model.field.bank.shape):
@@ -109,11 +123,14 @@ def storage(settings) -> dict:
             "weight_bits": settings.weight_bits}
 
 
-def encode_model(model, settings, info: dict | None = None, pixel_size=None) -> tuple[bytes, dict[str, int]]:
+def encode_model(model, settings, info: dict | None = None, pixel_size=None, value_map: ValueMap | None = None,
+                 pixel_filter: str | None = None) -> tuple[bytes, dict[str, int]]:
     """(``.dfield`` bytes, bytes per chunk) of ``model`` written with ``settings``' storage, the header's ``encoder``
-    record ``info`` and ``pixel_size``. The mesh was validated once, when rate control built it
-    (``dfc.rate.build_mesh``), and its bytes decode to it exactly: it is not validated again."""
-    return encode_dfield(to_contents(model, info, pixel_size=pixel_size), mesh_validated=True, **storage(settings))
+    record ``info``, ``pixel_size``, ``value_map`` (a model fitted in normalised units, ``dfc.field.units``) and
+    ``pixel_filter``. The mesh was validated once, when rate control built it (``dfc.rate.build_mesh``), and its bytes
+    decode to it exactly: it is not validated again."""
+    return encode_dfield(to_contents(model, info, pixel_size=pixel_size, value_map=value_map,
+                                     pixel_filter=pixel_filter), mesh_validated=True, **storage(settings))
 
 
 def encoder_info(settings, source: str, extra: dict) -> dict:

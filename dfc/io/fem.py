@@ -27,7 +27,8 @@ class FemSolution:
 
     points : (V, 2) float64 node positions (y down, ``spec/conventions.md``)
     triangles : (T, 3) int64 node indices, counter-clockwise (cross(b − a, c − a) > 0)
-    values : (V, C) float32 nodal values; channels : C names
+    values : (V, C) float64 nodal values (as read: a huge offset on a small variation keeps its digits); channels : C
+        names
     source : the file it was read from ('' in memory)
     """
 
@@ -100,7 +101,7 @@ def from_meshio(mesh, fields: list[str] | None = None, source: str = "") -> FemS
 
 
 def _channels(point_data: dict, fields, n_points: int, label: str) -> tuple[np.ndarray, list[str]]:
-    """(V, C) float32 values and their channel names from meshio point data (see the module notes)."""
+    """(V, C) float64 values and their channel names from meshio point data (see the module notes)."""
     if not point_data:
         raise InputError(f"{label}: no point data (nodal values) to encode")
     names = list(point_data) if fields is None else list(fields)
@@ -130,4 +131,4 @@ def _channels(point_data: dict, fields, n_points: int, label: str) -> tuple[np.n
                          f"{int(node)} ({channels[col]})")
     if len(set(channels)) != len(channels):
         raise InputError(f"{label}: fields give repeated channel names {channels}")
-    return values.astype(np.float32), channels
+    return values, channels

@@ -190,6 +190,46 @@ def window_sensor(base, window, width: int, height: int, *, sampler=None, rfilte
     })
 
 
+MITSUBA_FILTERS = ("box", "gaussian", "tent", "mitchell")
+"""dfc pixel filters (``dfc.pixel_filter``) that Mitsuba 3 renders with a reconstruction filter of its own."""
+
+
+def rfilter_plugin(pixel_filter) -> dict:
+    """The Mitsuba ``rfilter`` plugin dict of a dfc pixel filter (``PixelFilter`` or spec string): ``box``,
+    ``gaussian:S`` (stddev S; Mitsuba's radius 4S), ``tent``, ``mitchell``. Raises ``InputError`` for the others."""
+    from ..pixel_filter import parse
+
+    f = parse(pixel_filter) if isinstance(pixel_filter, str) else pixel_filter
+    if f.name not in MITSUBA_FILTERS or (f.name == "box" and f.param is not None):
+        raise InputError(f"Mitsuba renders with box, gaussian[:STDDEV], tent or mitchell, not {f}")
+    plugin = {"type": f.name}
+    if f.name == "gaussian":
+        plugin["stddev"] = float(f.param)
+    elif f.name == "mitchell":
+        plugin.update(B=1.0 / 3.0, C=1.0 / 3.0)
+    return plugin
+
+
+def rfilter_spec(rfilter) -> str:
+    """The dfc pixel filter spec (``dfc.pixel_filter``) of a Mitsuba reconstruction filter (object or plugin
+    dict) — what a render made with it states; ``"unknown"`` for filters dfc has no kernel of."""
+    from ..pixel_filter import parse
+
+    if isinstance(rfilter, dict):
+        kind, stddev = rfilter.get("type"), rfilter.get("stddev", 0.5)
+    else:
+        text = str(rfilter)
+        kind = text.split("[")[0].strip().lower().replace("filter", "")
+        kind = {"box": "box", "gaussian": "gaussian", "tent": "tent", "mitchellnetravali": "mitchell"}.get(kind)
+        if kind == "mitchell" and not ("B=0.333333" in text and "C=0.333333" in text):
+            kind = None  # dfc's mitchell is B = C = 1/3
+        found = re.search(r"stddev\s*=\s*([0-9.eE+-]+?)(?:[,\s\]]|$)", text)
+        stddev = float(found.group(1)) if found else 0.5
+    if kind not in MITSUBA_FILTERS:
+        return "unknown"
+    return str(parse(f"gaussian:{stddev:g}" if kind == "gaussian" else kind))
+
+
 def render_window(scene, window, width: int, height: int, spp: int, *, sensor: int = 0, seed: int = 0,
                   rfilter=None) -> np.ndarray:
     """Render the window ``(x0, y0, x1, y1)`` (film pixels of the rendered image, y down) at ``width × height``.

@@ -18,10 +18,12 @@ from ..field.model import FieldModel
 from ..field.quantize import DEFAULT_FEATURE_BITS
 from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
-from ..metrics import quality_scale
+from ..metrics import QualityScale, is_hdr
+from ..metrics import data_range as value_span
+from ..pixel_filter import TRAIN_POINTS
 from ..settings import FitSettings
 from .loop import BETAS, Sampler, Schedule, train
-from .losses import DataLoss, auto_loss
+from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
 __all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "FitSettings", "fit", "fit_bands",
@@ -134,6 +136,7 @@ def fit_image(
     init: FieldModel | None = None,
     exclude: np.ndarray | None = None,
     tonemap: bool | None = None,
+    pixel_filter=None,
     **overrides,
 ) -> FieldModel:
     """Fit a ``FieldModel`` on ``mesh`` to a raster covering ``mesh.domain``.
@@ -147,9 +150,11 @@ def fit_image(
         batch_size : samples per step (stratified, see ``image_sampler``)
         dim : feature channels; hidden, layers : the decoder's
         seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
-        loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (any value > 1), else "mse"
+        loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (``dfc.metrics.is_hdr``),
+            else "mse"
         qat_steps : quantisation-aware final steps (None: ``DEFAULT_QAT_FRACTION`` of ``steps``)
         device : torch device
+        pixel_filter : not read here (the encoder's request; ``dfc.codec`` resolves it into ``pixel_filter``)
     feature_bits : bits of the features during those steps (as the file will store them)
     weight_bits : bits of the integer weight matrices during those steps (None: fp16, as ``MLPW`` stores them)
     callback : ``callback(step, loss, batch_psnr)`` after each step
@@ -165,9 +170,13 @@ def fit_image(
     init : a model fitted before on another mesh of the same curves: the fit starts from it
         (``dfc.field.transfer.carry_over`` at every pixel centre) instead of from scratch
     exclude : optional (H, W) bool, pixels never trained on besides the mixed ones (held out to measure the fit)
+    pixel_filter : the ``dfc.pixel_filter.PixelFilter`` that made the pixels: each pixel is then compared with the
+        field filtered by it there (``dfc.train.pixel_sampler``; every pixel is trained, ``mixed_pixels`` is
+        ignored); None: point samples jittered in each pixel, mixed pixels as ``mixed_pixels`` says
     **overrides : ``FitSettings`` fields, applied on top of ``settings`` (``fit_image(image, mesh, steps=1000)``),
         and ``FieldModel`` options (activation, oneblob_bins, transform; the transform defaults to "log" for HDR
-        images whose values are all > -1, else "identity"). ``SettingsError`` for a value that breaks a rule.
+        images whose values are all > -1, else "identity"). ``SettingsError`` for a value that breaks a rule. The
+        fit works on the values as given: ``dfc.codec`` hands it values normalised to [0, 1] (``dfc.field.units``)
 
     Returns
     -------
@@ -185,6 +194,8 @@ def fit_image(
     if mixed_pixels not in ("drop", "keep"):
         raise ValueError(f"mixed_pixels must be 'drop' or 'keep', got {mixed_pixels!r}")
     held_out = exclude
+    if pixel_filter is not None:
+        mixed_pixels = "keep"
     exclude = edge_pixels(mesh, *pixels.shape[:2]) if mixed_pixels == "drop" else None
     if exclude is not None and exclude.mean() > MAX_DROPPED_FRACTION:
         exclude = None
@@ -197,10 +208,22 @@ def fit_image(
         carry_over(init, model, window_points(mesh.domain, pixels.shape[1], pixels.shape[0]))
     n = pixels.shape[0] * pixels.shape[1]
     cached = n <= MAX_CACHED_SAMPLES
-    sampler = image_sampler(
-        pixels, mesh.domain, settings.batch_size, device=settings.device, query=field.query if cached else None,
-        jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=settings.seed, exclude=exclude,
-    )
+    if pixel_filter is not None:
+        from .pixel_sampler import filtered_sampler
+
+        if held_out is not None:
+            raise ValueError("exclude is not supported with a pixel filter")
+        filtered = pixel_filter.filtered(edge_pixels(mesh, *pixels.shape[:2]))
+        points = n + (TRAIN_POINTS - 1) * int(filtered.sum())
+        sampler = filtered_sampler(pixels, mesh.domain, settings.batch_size, pixel_filter, filtered,
+                                   device=settings.device,
+                                   query=field.query if points <= MAX_CACHED_SAMPLES else None,
+                                   sets=max(1, min(8, MAX_CACHED_SAMPLES // points)), seed=settings.seed)
+    else:
+        sampler = image_sampler(
+            pixels, mesh.domain, settings.batch_size, device=settings.device, query=field.query if cached else None,
+            jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=settings.seed, exclude=exclude,
+        )
     fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
         weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
@@ -219,7 +242,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     """A fresh ``FieldModel`` for targets whose values span ``lo .. hi``, with per-channel ``mean`` (C,) and mean
     ``log_mean`` (C,) of ``log(1 + max(v, 0))``, and the ``fit`` settings derived from them.
 
-    HDR targets (some value > 1) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
+    HDR targets (``dfc.metrics.is_hdr``) default to the ``logmse`` loss and, when every value is > -1, to the ``log`` value
     transform, whose output is ``log(1 + v)``: the decoder then works on a range it can reach. The decoder's
     output bias starts at the mean of the targets in its output space (for the log transform the mean of the logs,
     not the log of the mean, which bright pixels pull far above most of the image). ``scale`` is (data_range,
@@ -228,10 +251,10 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     """
     from ..field.feature_field import FeatureField
 
-    hdr = hi > 1.0
+    hdr = is_hdr(hi=hi, mean=float(np.mean(mean)))
     loss, steps, qat_steps, seed = settings.loss, settings.steps, settings.qat_steps, settings.seed
-    if loss == "auto":
-        loss = auto_loss(np.array([lo, hi]))
+    if loss == "auto":  # ``dfc.train.losses.auto_loss`` of the targets, from their statistics
+        loss = "logmse" if hdr else "mse"
     if hdr and lo > -1.0:
         model_kw = {"transform": "log", **model_kw}
     steps = DEFAULT_STEPS if steps is None else steps
@@ -242,7 +265,7 @@ def _model_for(lo: float, hi: float, mean: np.ndarray, log_mean: np.ndarray, mes
     model = FieldModel(field, list(channels), seed=seed, **model_kw)
     with torch.no_grad():
         model.decoder.linears()[-1].bias.copy_(torch.from_numpy(log_mean if model.transform == "log" else mean))
-    default = quality_scale(np.array([lo, hi]))
+    default = QualityScale(1.0, tonemap=True) if hdr else QualityScale(value_span(np.array([lo, hi])))
     data_range, tonemap = scale
     data_range = default.data_range if data_range is None else data_range
     tonemap = default.tonemap if tonemap is None else tonemap

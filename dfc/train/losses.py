@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ..metrics import tonemap
+from ..metrics import is_hdr, tonemap
 
 __all__ = ["LOSSES", "RELMSE_EPS", "DataLoss", "auto_loss", "loss_value", "signed_log"]
 
@@ -16,9 +16,9 @@ RELMSE_EPS = 0.01
 
 def auto_loss(values) -> str:
     """The loss ``loss="auto"`` means for targets ``values`` (array, any shape) of an image: ``"logmse"`` for HDR
-    colours (some value > 1), else ``"mse"``. Every fit of a colour signal resolves "auto" here: dfc's encoder and
+    colours (``dfc.metrics.is_hdr``), else ``"mse"``. Every fit of a colour signal resolves "auto" here: dfc's encoder and
     the comparison harness's baselines."""
-    return "logmse" if float(values.max()) > 1.0 else "mse"
+    return "logmse" if is_hdr(values) else "mse"
 
 
 def signed_log(v: Tensor) -> Tensor:
@@ -50,7 +50,9 @@ class DataLoss:
     """``loss`` of ``dfc.train.loop.train`` for data samplers (``dfc.train.samplers``).
 
     A batch is ``(xy (B, 2), target (B, C))``, optionally with a third item: the batch's precomputed
-    ``field.query(xy)`` (``FieldModel.forward(query=…)``) or a dict of further model arguments (e.g. ``{"t": times}``).
+    ``field.query(xy)`` (``FieldModel.forward(query=…)``), a dict of further model arguments (e.g. ``{"t": times}``),
+    or a ``dfc.train.pixel_sampler.PixelWeights``: then the N points' values, weighted, sum into the B pixels of
+    ``target``.
     Metrics: ``loss`` and ``psnr``, the batch's PSNR in dB with ``data_range``, of tone-mapped values with
     ``tonemap`` (``dfc.metrics.quality_scale``: the scale the encoder's summary uses).
     """
@@ -62,7 +64,11 @@ class DataLoss:
 
     def __call__(self, model: nn.Module, batch: tuple) -> tuple[Tensor, dict[str, Tensor]]:
         xy, target, *extra = batch
-        if not extra:
+        if extra and hasattr(extra[0], "row"):  # a filtered batch (``dfc.train.pixel_sampler``): points → pixels
+            points = model(xy) if extra[0].query is None else model(xy, query=extra[0].query)
+            pred = torch.zeros(target.shape, dtype=points.dtype, device=points.device).index_add_(
+                0, extra[0].row, points * extra[0].weight[:, None].to(points.dtype))
+        elif not extra:
             pred = model(xy)
         elif isinstance(extra[0], dict):
             pred = model(xy, **extra[0])

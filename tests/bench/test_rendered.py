@@ -111,7 +111,7 @@ def test_a_render_and_curves_given_are_used(tmp_path):
 
 
 @pytest.mark.parametrize("args,match", [
-    (["--scene-spp", "8"], "--scene-spp and --sensor apply to a Mitsuba scene"),
+    (["--scene-spp", "8"], "--scene-spp, --scene-filter and --sensor apply to a Mitsuba scene"),
 ])
 def test_mitsuba_options_need_a_mitsuba_scene(tmp_path, args, match):
     result = CliRunner().invoke(cli, ["bench", "--scene", "shapes", *args, "-o", str(tmp_path)])

@@ -49,6 +49,13 @@ def test_fem_benchmark_reports_held_out_psnr_and_equal_steps(wall, tmp_path, cap
     for key in ("dfc_psnr_held_out", "hash_psnr_held_out"):
         assert 5 < figures[key] < 100
     assert "held out" in stdout
+    # the same field in three units (x1, x1e-4, x1e4 by default) fits the same
+    units = figures["units"]
+    assert [row["factor"] for row in units] == [1.0, 1e-4, 1e4]
+    assert max(row["psnr"] for row in units) - min(row["psnr"] for row in units) < 0.5
+    assert all(abs(row["bytes"] - units[0]["bytes"]) <= 0.02 * units[0]["bytes"] for row in units)
+    assert 0 <= figures["leakage"]["dfc"]["share"] == units[0]["leakage_share"]
+    assert "x0.0001" in stdout and "max / max |u|" in stdout
 
 
 def test_wos_benchmark_measures_the_encode_against_the_reference(tmp_path, capsys):

@@ -18,7 +18,7 @@ from dfc.codec import load
 from dfc.geometry.pixels import edge_pixels
 from dfc.io.image import read_image, write_exr
 from dfc.metrics import psnr
-from dfc.render import EDGE_SPP
+from dfc.render import render
 
 from ..conftest import SAMPLES
 
@@ -72,8 +72,9 @@ def test_encode_summary_and_stats(encoded, capsys):
     assert s["bits_per_pixel"] == pytest.approx(8 * report["total_bytes"] / (256 * 256))
     assert sum(s["chunk_bytes"].values()) + 16 == s["file_bytes"]
     assert s["channels"] == ["R", "G", "B"] and s["time_axis"] is None
+    assert s["value_transform"] == "affine" and len(s["value_map"]["offset"]) == 3  # fitted in normalised units
     code, out, _ = run(["stats", path], capsys)
-    assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out
+    assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out and "offset + scale" in out
 
 
 def test_decode_matches_reported_psnr_and_is_deterministic(encoded, tmp_path, capsys):
@@ -102,7 +103,8 @@ def test_decode_any_size_and_window_samples_pixel_centres(encoded, tmp_path, cap
     with torch.no_grad():
         direct = model(torch.from_numpy(np.stack([xs.ravel(), ys.ravel()], 1))).numpy().reshape(30, 40, 3)
     np.testing.assert_allclose(img, direct, rtol=0, atol=1e-6)
-    # at the input's resolution (1 domain unit per pixel) the default averages the pixels an edge crosses
+    # on the input's grid (1 domain unit per pixel) the default filters the pixels an edge crosses with the file's
+    # pixel filter (the sample's 4 x 4 sub-samples, found by the encoder)
     code, _, err = run(["decode", path, "-o", out, "--float", *window, "-q"], capsys)
     assert code == 0, err
     mixed = edge_pixels(model.field.mesh, 30, 40, (100, 50, 140, 80))
@@ -110,7 +112,9 @@ def test_decode_any_size_and_window_samples_pixel_centres(encoded, tmp_path, cap
     assert mixed.any() and not mixed.all()
     np.testing.assert_allclose(boxed[~mixed], direct[~mixed], rtol=0, atol=1e-6)
     assert np.abs(boxed[mixed] - direct[mixed]).max() > 0.05
-    np.testing.assert_allclose(boxed, model.render(40, 30, (100, 50, 140, 80), edge_spp=EDGE_SPP), rtol=0, atol=1e-6)
+    assert model.header["pixel_filter"] == "box:4"
+    np.testing.assert_allclose(boxed, render(model, 40, 30, (100, 50, 140, 80), pixel_filter="box:4"), rtol=0,
+                               atol=1e-6)
     png = tmp_path / "big.png"
     code, _, err = run(["decode", path, "-o", png, "--size", "1024x1024", "-q"], capsys)
     assert code == 0, err

@@ -79,16 +79,16 @@ def test_bad_input_is_one_error_line_and_no_file(case, tmp_path, capsys):
 def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, capsys):
     """``dfc encode IMAGE --curves auto``: the curves ``dfc curves`` finds with its defaults, and the file says so."""
     from dfc.cli.stats import file_stats
-    from dfc.geometry.sources.raster import RasterSettings, image_curves
+    from dfc.geometry.sources.raster import RasterSettings, image_curves_filtered
     from dfc.io.image import read_image
 
     out = tmp_path / "disc.dfield"
     code, stdout, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
                              "--json", tmp_path / "s.json"], capsys)
     assert code == 0, err
-    expected = image_curves(read_image(disc_exr).pixels)
+    expected, used, _ = image_curves_filtered(read_image(disc_exr).pixels)  # the encoder's filter detection
     record = file_stats(out)["encoder"]
-    assert record["source"] == "auto"
+    assert record["source"] == "auto" and record["curves"]["pixel_filter"] == str(used)
     assert record["curves"]["settings"] == RasterSettings().to_dict()
     assert record["curves"]["curves"] == expected.n_curves == 1 and record["curves"]["pieces"] == len(expected)
     assert "found in the image" in stdout and "1 curves" in stdout

@@ -2,13 +2,16 @@
 
 valid/tiny.dfield is a file of version 1.0 (FEAT, MLPW) and stays as it was written: it proves that old files keep
 decoding, so this script only reads it (and writes it, from the 1.0 chunk encodings, when it is missing).
-valid/tiny_coded.dfield holds the same contents with the 1.1 chunks (FEAC, MLPQ). Each valid file has a .json with
-the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
+valid/tiny_coded.dfield holds the same contents with the 1.1 chunks (FEAC, MLPQ) and is frozen the same way (a
+file of content version 1.1). valid/tiny_units.dfield (content 1.2) holds them with value_transform "affine": an
+offset and scale per channel (``VALUE_MAP``). Each valid file has a .json with the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on valid/tiny_filter.dfield (content 1.2) adds the
+header keys pixel_size and pixel_filter.
 a deliberate format change (update the spec's change log)."""
 
 import json
 import struct
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +24,9 @@ from dfc.io.container import decode_dfield, encode_dfield  # noqa: E402
 from dfc.io.meshcodec import compress  # noqa: E402
 from tests.io.test_container import join, make_contents, split  # noqa: E402
 
+VALUE_MAP = {"value_offset": [1e6, -3e-5, 0.5], "value_scale": [1e-3, 2e-9, 4.0]}
+"""The tiny_units file's map: a huge offset on a small scale, a tiny scale, and an ordinary one."""
+
 
 def _write_valid(name: str, blob: bytes) -> None:
     decoded = decode_dfield(blob)
@@ -28,6 +34,7 @@ def _write_valid(name: str, blob: bytes) -> None:
     (HERE / "valid" / f"{name}.json").write_text(json.dumps({
         "vertices": decoded.mesh.n_vertices, "features_shape": list(decoded.features.shape),
         "features_sum": float(np.asarray(decoded.features, np.float64).sum()),
+        **({"pixel_filter": decoded.header["pixel_filter"]} if "pixel_filter" in decoded.header else {}),
     }, indent=1) + "\n")
 
 
@@ -37,8 +44,23 @@ def main():
     if not frozen.exists():
         _write_valid("tiny", encode_dfield(c, compression_level=19, feature_coding="plain")[0])
     blob = frozen.read_bytes()
-    coded, _ = encode_dfield(c, compression_level=19, feature_coding="predicted", weight_bits=6)
-    _write_valid("tiny_coded", coded)
+    frozen_coded = HERE / "valid" / "tiny_coded.dfield"
+    if not frozen_coded.exists():
+        _write_valid("tiny_coded", encode_dfield(c, compression_level=19, feature_coding="predicted", weight_bits=6)[0])
+    coded = frozen_coded.read_bytes()
+    units = replace(c, header={**c.header, "value_transform": "affine", **VALUE_MAP})
+    units_blob = encode_dfield(units, compression_level=19, feature_coding="predicted", weight_bits=6)[0]
+    _write_valid("tiny_units", units_blob)
+    zero_scale = split(units_blob)
+    head = json.loads(zstandard.ZstdDecompressor().decompress(zero_scale[0][1]))
+    zero_scale[0][1] = compress(json.dumps({**head, "value_scale": [1e-3, 0.0, 4.0]}).encode(), 19)
+    x0, y0, x1, y1 = c.header["domain"]
+    filtered = replace(c, header={**c.header, "pixel_size": [(x1 - x0) / 16, (y1 - y0) / 16],
+                                  "pixel_filter": "gaussian:0.5"})
+    _write_valid("tiny_filter", encode_dfield(filtered, compression_level=19, weight_bits=6)[0])
+    unknown = [list(x) for x in split(coded)]
+    head = {**decode_dfield(coded).header, "pixel_filter": "lanczos"}
+    unknown[0][1] = compress(json.dumps(head, separators=(",", ":")).encode(), 19)
     ch = split(blob)
     cc = split(coded)
     mlpq = cc[4][1]
@@ -64,6 +86,8 @@ def main():
         "length_past_end": blob[:16] + struct.pack("<I", 0xFFFFFFF0) + blob[20:],
         "feat_and_feac": join(cc[:4] + [ch[3]] + cc[4:]),
         "mlpq_integer_out_of_range": join(out_of_range),
+        "value_scale_not_positive": join(zero_scale),
+        "pixel_filter_unknown": join(unknown),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)

@@ -15,6 +15,7 @@ from dfc.errors import FormatError, MeshError
 from dfc.field.layout import build_layout
 from dfc.field.quantize import dequantize_weights, quantize_weights
 from dfc.io.container import (
+    CONTENT_VERSION,
     DfieldContents,
     decode_dfield,
     encode_dfield,
@@ -131,7 +132,7 @@ def test_round_trip(tmp_path, contents, coding):
         assert np.array_equal(getattr(out.mesh, f), getattr(contents.mesh, f)), f
     assert out.mesh.domain == contents.mesh.domain
     assert {k: v for k, v in out.header.items() if k not in ("format", "content_version")} == contents.header
-    assert out.header["content_version"] == [1, 1]
+    assert out.header["content_version"] == list(CONTENT_VERSION)
     assert sorted(sizes) == sorted(["HEAD", "MESH", "TOPO", "DEND"] + (["FEAT", "MLPW"] if "weight_bits" not in coding
                                                                      else ["FEAC", "MLPQ"]))
 
@@ -162,7 +163,8 @@ def test_info_reads_counts_without_decoding(tmp_path, contents):
     path = tmp_path / "f.dfield"
     sizes = write_dfield(path, contents, feature_bits=10, weight_bits=7)
     info = read_dfield_info(path)
-    assert info["chunks"] == sizes and info["container_version"] == [1, 1] and info["content_version"] == [1, 1]
+    assert info["chunks"] == sizes and info["container_version"] == [1, 1]
+    assert info["content_version"] == list(CONTENT_VERSION)
     assert info["mesh"]["vertices"] == contents.mesh.n_vertices and info["mesh"]["bits"] == 16
     assert info["features"] == {"slices": 1, "rows": contents.features.shape[1], "width": 5, "bits": 10,
                                 "coding": "predicted, range-coded"}
@@ -328,10 +330,16 @@ def test_hostile_headers(blob, contents):
         {**base, "channels": []}, {**base, "channels": ["a", "a"]}, {**base, "value_transform": "sqrt"},
         {**base, "times": [1.0, 2.0]}, {**base, "model": []}, {k: v for k, v in base.items() if k != "domain"},
         [1, 2], {**base, "domain": [0, 0, True, 32]}, {**base, "channels": "rgb"}, {**base, "encoder": 3},
+        {**base, "value_transform": "affine"}, {**base, "value_offset": [0, 0, 0], "value_scale": [1, 1, 1]},
+        {**base, "value_transform": "affine", "value_offset": [0, 0], "value_scale": [1, 1, 1]},
+        {**base, "value_transform": "affine", "value_offset": [0, 0, 0], "value_scale": [1, -1, 1]},
+        {**base, "value_transform": "affine", "value_offset": [0, 0, "0"], "value_scale": [1, 1, 1]},
     ]
     for h in bad:
         with pytest.raises(FormatError):
             decode_dfield(with_header(blob, h))
+    affine = {**base, "value_transform": "affine", "value_offset": [1e6, 0, -2], "value_scale": [1e-9, 1, 3]}
+    assert decode_dfield(with_header(blob, affine)).header["value_offset"] == [1e6, 0, -2]
     text = json.dumps(base).encode()
     for raw in (text.replace(b'"identity"', b"NaN"), b"\xff" + text, text[:-1], b'{"a": 1, "a": 2}',
                 b"[" * 100000 + b"]" * 100000, b'{"x": ' + b"[" * 40 + b"]" * 40 + b"}", b" " * (2**20 + 1)):

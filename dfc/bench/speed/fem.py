@@ -10,7 +10,14 @@ output of ``samples/make_helmholtz.py``). The benchmark encodes it with dfc (``d
   ``--hash-steps`` steps, by default as many as dfc's);
 - the leakage check: at points ``--offset`` × the domain's longer side away from every barrier segment, on both
   sides (the middle 90 % of each segment, away from its ends), the mean and max absolute error against the FEM
-  solution on that side, of dfc and of the hash grid, next to the mean jump of the FEM solution across the barrier.
+  solution on that side, of dfc and of the hash grid, next to the mean jump of the FEM solution across the barrier,
+  and dfc's max error as a share of the solution's max |u|;
+- units (``--units``): dfc's encode of the same field with its values multiplied by each factor (default ×1e-4 and
+  ×1e4 besides ×1): its nodal PSNR against the span of those values, bytes and leakage share, which should not
+  depend on the factor (``dfc.field.units``).
+
+``--fem-default`` encodes as ``dfc encode`` does without a mesh-size option (aiming at ``dfc.codec.FEM_TARGET_PSNR``
+at the nodes) instead of with ``--max-triangles``.
 
 A codec that leaks blends the two sides near the barrier: its error there approaches half the jump.
 """
@@ -18,6 +25,7 @@ A codec that leaks blends the two sides near the barrier: its error there approa
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -64,6 +72,10 @@ def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tu
 @click.option("--fem-sampling", type=click.Choice(["linear", "nearest"]), default="linear", show_default=True)
 @click.option("--max-triangles", type=click.IntRange(min=2), default=8000, show_default=True,
               help="dfc mesh size.")
+@click.option("--fem-default", is_flag=True,
+              help="Encode as dfc encode does by default (aiming at the FEM target PSNR) instead of --max-triangles.")
+@click.option("--units", "unit_factors", default="1e-4,1e4", show_default=True,
+              help="Comma-separated factors: also encode the field with its values multiplied by each (empty: none).")
 @click.option("--steps", type=click.IntRange(min=1), default=1000, show_default=True, help="dfc fit steps.")
 @click.option("--hash-steps", type=click.IntRange(min=1), default=None,
               help="Hash-grid training steps  [default: --steps, as many as dfc's].")
@@ -79,8 +91,8 @@ def side_points(segments: np.ndarray, offset: float, n: int = SIDE_POINTS) -> tu
               help="Also write the figures to this JSON file (- for standard output; the text then goes to "
                    "standard error).")
 @quiet_option
-def command(solution_path, curves_path, fields, fem_sampling, max_triangles, steps, hash_steps, batch_size, offset,
-            n_interior, seed, output, json_path, quiet):
+def command(solution_path, curves_path, fields, fem_sampling, max_triangles, fem_default, unit_factors, steps,
+            hash_steps, batch_size, offset, n_interior, seed, output, json_path, quiet):
     """Bytes, PSNR and leakage across the barriers of dfc and an equal-size hash grid on a FEM solution."""
     import torch
 
@@ -99,7 +111,14 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     in_bytes = Path(solution_path).stat().st_size
     click.echo(f"{solution_path}: {in_bytes} bytes, {len(solution.points)} nodes, {len(solution.triangles)} "
                f"triangles, channels {', '.join(solution.channels)}", err=text_err)
-    settings = EncodeSettings(max_triangles=max_triangles, steps=steps, batch_size=batch_size, seed=seed)
+    try:
+        factors = [float(f) for f in unit_factors.split(",") if f.strip()]
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated numbers, got {unit_factors!r}", param_hint="--units")
+    if not all(np.isfinite(f) and f != 0 for f in factors):
+        raise click.BadParameter("factors must be finite and non-zero", param_hint="--units")
+    settings = EncodeSettings(max_triangles=None if fem_default else max_triangles, steps=steps,
+                              batch_size=batch_size, seed=seed)
     clock = time.perf_counter()
     every = max(1, steps // 10)
     blob, report = encode_fem(solution, curves, settings, sampling=fem_sampling, callback=lambda s, loss, p: (
@@ -116,6 +135,10 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     click.echo(f"dfc: {len(blob)} bytes ({in_bytes / len(blob):.1f}x smaller), PSNR {report.psnr:.2f} dB against the "
                f"nodal values (data range {report.data_range:.4g}), {dfc_held:.2f} dB held out at {len(held_xy)} "
                f"element centroids; {report.n_triangles} triangles, {dfc_s:.0f} s", err=text_err)
+    click.echo(f"  {report.units}", err=text_err)
+    if report.target_psnr is not None and report.psnr < report.target_psnr:
+        click.echo(f"  the FEM target of {report.target_psnr:g} dB was not reached in its refinement rounds",
+                   err=text_err)
 
     hash_steps = hash_steps or steps
     clock = time.perf_counter()
@@ -141,23 +164,54 @@ def command(solution_path, curves_path, fields, fem_sampling, max_triangles, ste
     sides = (("left", left), ("right", right))
     truth = {side: evaluate_fem(solution, curves, p, mode=fem_sampling) for side, p in sides}
     jump = float(np.abs(truth["left"] - truth["right"]).mean())
-    leak: dict = {"offset": offset * extent, "points_per_side": len(left), "mean_jump": jump}
+    peak = float(np.abs(solution.values).max())
+    leak: dict = {"offset": offset * extent, "points_per_side": len(left), "mean_jump": jump, "max_abs_u": peak}
     click.echo(f"leakage at {offset * extent:.3g} from the barrier ({len(left)} points per side), mean |jump| of the "
-               f"FEM solution across it {jump:.4g}; absolute error (mean / max):", err=text_err)
+               f"FEM solution across it {jump:.4g}, max |u| {peak:.4g}; absolute error (mean / max):", err=text_err)
     for name, m in (("dfc", model), ("hash grid", grid)):
-        row = {}
-        with torch.no_grad():
-            for side, p in sides:
-                err = np.abs(m(torch.from_numpy(p)).numpy() - truth[side])
-                row[side] = {"mean": float(err.mean()), "max": float(err.max())}
+        row = _leakage(m, sides, truth, peak)
         leak[name] = row
         click.echo(f"  {name:<10} left {row['left']['mean']:.4g} / {row['left']['max']:.4g}   "
-                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}", err=text_err)
+                   f"right {row['right']['mean']:.4g} / {row['right']['max']:.4g}   "
+                   f"max / max |u| {row['share']:.4f}", err=text_err)
+    units = [{"factor": 1.0, "psnr": report.psnr, "bytes": len(blob), "leakage_share": leak["dfc"]["share"],
+              "triangles": report.n_triangles}]
+    for factor in factors:
+        if factor == 1.0:
+            continue
+        scaled = replace(solution, values=solution.values * factor)
+        f_blob, f_report = encode_fem(scaled, curves, settings, sampling=fem_sampling)
+        f_truth = {side: v * factor for side, v in truth.items()}
+        units.append({"factor": factor, "psnr": f_report.psnr, "bytes": len(f_blob), "triangles": f_report.n_triangles,
+                      "leakage_share": _leakage(loads(f_blob), sides, f_truth, peak * abs(factor))["share"]})
+    if len(units) > 1:
+        click.echo("units: the field with its values multiplied by a factor (PSNR at the nodes against the span of "
+                   "those values)", err=text_err)
+        for row in units:
+            click.echo(f"  x{row['factor']:<8g} {row['psnr']:.2f} dB, {row['bytes']} bytes, {row['triangles']} "
+                       f"triangles, leakage max / max |u| {row['leakage_share']:.4f}", err=text_err)
     if json_path:
         figures = {"solution": str(solution_path), "solution_bytes": in_bytes, "nodes": len(solution.points),
                    "fem_triangles": len(solution.triangles), "dfield_bytes": len(blob), "ratio": in_bytes / len(blob),
                    "dfc_psnr": report.psnr, "dfc_psnr_held_out": dfc_held, "held_out_points": len(held_xy),
                    "data_range": report.data_range, "dfc_triangles": report.n_triangles,
                    "dfc_steps": steps, "dfc_s": dfc_s, "hash_bytes": grid.stored_bytes(), "hash_psnr": grid_psnr,
-                   "hash_psnr_held_out": grid_held, "hash_steps": hash_steps, "hash_s": hash_s, "leakage": leak}
+                   "hash_psnr_held_out": grid_held, "hash_steps": hash_steps, "hash_s": hash_s, "leakage": leak,
+                   "units": units, "units_text": report.units}
         write_json(json_path, figures)
+
+
+
+def _leakage(model, sides, truth: dict, peak: float) -> dict:
+    """Per side the mean and max absolute error of ``model`` at the side points (``sides``: (name, xy (N, 2))
+    pairs) against ``truth[name]`` (N, C), and ``share``: the larger max divided by ``peak`` (the solution's max
+    |u|)."""
+    import torch
+
+    row: dict = {}
+    with torch.no_grad():
+        for side, p in sides:
+            err = np.abs(np.asarray(model(torch.from_numpy(p)).numpy(), np.float64) - truth[side])
+            row[side] = {"mean": float(err.mean()), "max": float(err.max())}
+    row["share"] = max(row[side]["max"] for side, _ in sides) / peak
+    return row

@@ -7,7 +7,7 @@ raster, as ``samples/sample.exr`` is made) and encoded with ``dfc.codec.encode_i
 
 - **bytes**, and bytes per chunk;
 - **1× PSNR on all pixels** against the raster it was fitted to, rendered with the decoder's default anti-aliasing
-  (``dfc.render.default_edge_spp``) and, for comparison, at the pixel centres only; plus the PSNR without the mixed pixels
+  (``dfc.render.default_pixel_filter``: the file's pixel filter) and, for comparison, at the pixel centres only; plus the PSNR without the mixed pixels
   (``dfc.geometry.pixels.edge_pixels``) at the pixel centres;
 - **edge zoom PSNR** at 33× and 100× in windows centred on the middle of every input curve and on every open
   curve end inside the domain (``rate_probes``), against the exact scene at the same points;
@@ -91,20 +91,20 @@ def measure(scene, blob: bytes, pixels: np.ndarray) -> dict:
     from ...codec import loads
     from ...geometry.pixels import edge_pixels
     from ...metrics import quality_scale
-    from ...render import default_edge_spp, render
+    from ...render import default_pixel_filter, render
 
     model = loads(blob)
     h, w = pixels.shape[:2]
     scale = quality_scale(pixels)
-    spp = default_edge_spp(model, w, h)
+    pixel_filter = default_pixel_filter(model, w, h)[0]
     centres = render(model, w, h)
-    boxed = render(model, w, h, edge_spp=spp)
+    boxed = render(model, w, h, pixel_filter=pixel_filter)
     mixed = edge_pixels(model.field.mesh, h, w)
     edge, tips, smooth = rate_probes(scene.curves)
     out = {
         "bytes": len(blob),
         "psnr_1x": scale.psnr(pixels, boxed),
-        "edge_spp": spp,
+        "pixel_filter": pixel_filter,
         "psnr_1x_centres": scale.psnr(pixels, centres),
         "psnr_1x_unmixed": scale.psnr(pixels[~mixed], centres[~mixed]),
     }
@@ -139,6 +139,7 @@ def command(scene_name, overrides, json_path):
     open curve ends, and smooth-region PSNR of the written file (see the module documentation)."""
     from ...codec import EncodeSettings, encode_image
     from ...io.image import Image
+    from ...metrics import is_hdr
     from ..scenes import get_scene
 
     scene = get_scene(scene_name)
@@ -146,7 +147,7 @@ def command(scene_name, overrides, json_path):
     pixels = scene.render(round(x1 - x0), round(y1 - y0))
     settings = EncodeSettings(**overrides)
     clock = time.perf_counter()
-    blob, report = encode_image(Image(pixels, scene.channels, hdr=float(pixels.max()) > 1.0), scene.curves, settings)
+    blob, report = encode_image(Image(pixels, scene.channels, hdr=is_hdr(pixels)), scene.curves, settings)
     seconds = time.perf_counter() - clock
     out = {"scene": scene_name, "settings": settings.to_dict(), "encode_s": seconds, "chunks": report.chunk_bytes,
            "triangles": report.n_triangles, **measure(scene, blob, pixels)}

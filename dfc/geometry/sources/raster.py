@@ -3,8 +3,9 @@
 The stages, each in its own module:
 
 1. ``edges``: Canny (scikit-image) on HDR-safe perceptual channels (asinh-log luminance and chroma), thinned.
-2. ``subpixel``: at every edge pixel, the box-filtered step model places the edge where the mixed pixels
-   say it is, and tells a step (kept) from a ramp wider than ``max_blur`` or a jump below ``low`` (dropped).
+2. ``subpixel``: at every edge pixel, the step model filtered by the pixel filter (``pixel_filter``: the box
+   unless given; "auto": extracted with the box first, then the filter ``dfc.pixel_model.detect`` finds along
+   those curves, and extracted again with it when it is another) places the edge where the mixed pixels say it is, and tells a step (kept) from a ramp wider than ``max_blur`` or a jump below ``low`` (dropped).
 3. ``chains``: edge pixels linked into ordered chains of sub-pixel points, cut where the profile stops
    being a step, joined through junctions and corners; chains shorter than ``min_length`` are dropped.
 4. ``dfc.geometry.fitting``: lines and cubic Béziers within ``tolerance`` of the points, cut at corners.
@@ -30,7 +31,7 @@ from .chains import Chain, link, trace_skeleton
 from .edges import edge_skeleton, perceptual
 from .subpixel import WINDOW, edge_points, residual_of_blur
 
-__all__ = ["RasterSettings", "image_curves"]
+__all__ = ["RasterSettings", "image_curves", "image_curves_filtered"]
 
 
 @dataclass(frozen=True)
@@ -80,12 +81,33 @@ _SPAN = 3.0  # px over which tangents at chain ends and corners are measured
 _MIN_POINTS = 6  # edge points scatter by a few hundredths of a pixel: pieces under 6 points are not split for that
 
 
-def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, **overrides) -> Curves:
+def image_curves_filtered(pixels: np.ndarray, settings: RasterSettings | None = None, pixel_filter: str = "auto"):
+    """(curves, ``PixelFilter`` used, ``dfc.pixel_model.Detection`` or None) of ``image_curves`` with the pixel filter
+    of spec ``pixel_filter``: a ``dfc.pixel_filter`` spec, or "auto": extracted with the box, then with the filter
+    ``dfc.pixel_model.detect`` finds along those curves when that is another. Raises ``InputError`` for an unknown
+    spec."""
+    from ...pixel_filter import parse
+    from ...pixel_model import detect
+
+    if str(pixel_filter).strip().lower() != "auto":
+        f = parse(pixel_filter)
+        return image_curves(pixels, settings, pixel_filter=f), f, None
+    curves = image_curves(pixels, settings)
+    found = detect(pixels, curves)
+    if found.pixels and str(found.filter) != "box":
+        curves = image_curves(pixels, settings, pixel_filter=found.filter)
+    return curves, found.filter, found
+
+
+def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pixel_filter=None,
+                 **overrides) -> Curves:
     """Discontinuity curves of a linear image.
 
     pixels : (H, W, C) float linear values (EXR scene-linear or decoded sRGB), H, W ≥ 2, all finite
     settings : ``RasterSettings`` (default ``RasterSettings()``); ``overrides`` replace single fields,
         e.g. ``image_curves(pixels, tolerance=0.1)``
+    pixel_filter : the ``dfc.pixel_filter.PixelFilter`` that made the pixels (None: the box), for the sub-pixel
+        step model
     returns ``Curves`` over ``[0, W] × [0, H]``; empty (no pieces) when the image has no jumps
 
     Raises ``InputError`` for an image that is too small or holds NaN or infinite values, ``ValueError``
@@ -104,7 +126,7 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, **o
     if not np.isfinite(pixels).all():
         raise InputError(f"image holds {int((~np.isfinite(pixels)).sum())} NaN or infinite value(s)")
     domain = (0.0, 0.0, float(W), float(H))
-    chains = _chains(pixels, settings)
+    chains = _chains(pixels, settings, pixel_filter)
     fits = _weld(chains, [_fit(c, settings) for c in chains], settings, domain)
     degree = [d for d, _ in fits]
     cp = [c for _, c in fits]
@@ -116,16 +138,16 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, **o
                   np.stack([k, k + 1.0], axis=1), [f"edge {i}" for i in range(len(fits))], [None] * len(fits))
 
 
-def _chains(pixels: np.ndarray, s: RasterSettings) -> list[Chain]:
+def _chains(pixels: np.ndarray, s: RasterSettings, pixel_filter=None) -> list[Chain]:
     """Edge chains of sub-pixel points, at least ``min_length`` long."""
     H, W, _ = pixels.shape
     channels = perceptual(pixels, s.black)
     skeleton, vertical = edge_skeleton(channels, sigma=s.sigma, low=s.low, high=s.high)
     rows, cols = np.nonzero(skeleton)
-    points = edge_points(pixels, rows, cols, vertical[rows, cols])
+    points = edge_points(pixels, rows, cols, vertical[rows, cols], pixel_filter)
     sides = perceptual(np.stack([points.side_a, points.side_b])[:, :, None, :], s.black)[:, :, 0]
     jump = np.abs(sides[1] - sides[0]).max(axis=-1) if len(rows) else np.zeros(0)
-    accepted = points.valid & (points.residual <= _max_residual(s.max_blur)) & (jump >= s.low)
+    accepted = points.valid & (points.residual <= _max_residual(s.max_blur, pixel_filter)) & (jump >= s.low)
     point_of_pixel = np.full(H * W, -1, dtype=np.int64)
     point_of_pixel[(rows * W + cols)[accepted]] = np.nonzero(accepted)[0]
     paths, closed, ends, junction_xy = trace_skeleton(skeleton)
@@ -135,8 +157,8 @@ def _chains(pixels: np.ndarray, s: RasterSettings) -> list[Chain]:
 
 
 @functools.lru_cache(maxsize=16)
-def _max_residual(max_blur: float) -> float:
-    return residual_of_blur(max_blur)
+def _max_residual(max_blur: float, pixel_filter=None) -> float:
+    return residual_of_blur(max_blur, pixel_filter)
 
 
 def _fit(chain: Chain, s: RasterSettings) -> tuple[np.ndarray, np.ndarray]:

@@ -15,6 +15,12 @@ Jumps only: the same parameters predict every pixel of the window; a step explai
 per cent of the jump, a ramp (blur, soft shadow) wider than about a pixel does not. ``residual`` is that
 misfit, RMS over the window, as a share of the jump.
 
+Other pixel filters (``dfc.pixel_filter``; ``pixel_filter`` argument): a kernel whose integer translates sum to 1
+(box, tent, the B = C = 1/3 Mitchell cubic; nearly so Mitsuba's Gaussian σ 0.5 and Cycles' Blackman–Harris) leaves
+each column's sum as it is, so the same column means hold; the kernel only replaces the box's variance 1/12 in the
+curvature correction by its own (``offset = mean − k · var``) and predicts the window's pixels with its own step
+share (``dfc.pixel_model.step_share``) in ``residual``.
+
 Mostly vertical edges use the transposed window (three rows, ``2M + 1`` columns). Coordinates follow
 ``spec/conventions.md``: x right, y down, pixel ``(r, c)`` covers ``[c, c + 1] × [r, r + 1]``.
 """
@@ -56,12 +62,14 @@ class EdgePoints:
     valid: np.ndarray
 
 
-def edge_points(pixels: np.ndarray, rows: np.ndarray, cols: np.ndarray, vertical: np.ndarray) -> EdgePoints:
-    """Fit the box-filtered step model at edge pixels.
+def edge_points(pixels: np.ndarray, rows: np.ndarray, cols: np.ndarray, vertical: np.ndarray,
+                pixel_filter=None) -> EdgePoints:
+    """Fit the filtered step model at edge pixels.
 
     pixels : (H, W, C) float linear values
     rows, cols : (N,) int pixel indices of edge pixels
     vertical : (N,) bool True where the edge is mostly vertical (|gradient x| > |gradient y|)
+    pixel_filter : the ``dfc.pixel_filter.PixelFilter`` that made the pixels (None: the box)
     """
     pixels = np.asarray(pixels, dtype=np.float64)
     rows, cols = np.asarray(rows, dtype=np.int64), np.asarray(cols, dtype=np.int64)
@@ -73,7 +81,7 @@ def edge_points(pixels: np.ndarray, rows: np.ndarray, cols: np.ndarray, vertical
            "key": np.full(n, -1, dtype=np.int64), "valid": np.zeros(n, dtype=bool)}
     for vert, image, along, across in ((False, pixels, cols, rows), (True, pixels.transpose(1, 0, 2), rows, cols)):
         idx = np.nonzero(vertical == vert)[0]
-        fit = _fit_columns(image, across[idx], along[idx])
+        fit = _fit_columns(image, across[idx], along[idx], pixel_filter)
         pos_across, pos_along = fit["across"], fit["along"]
         slope = fit["slope"]
         norm = np.sqrt(1.0 + slope**2)
@@ -90,21 +98,29 @@ def edge_points(pixels: np.ndarray, rows: np.ndarray, cols: np.ndarray, vertical
     return EdgePoints(**out)
 
 
-def _fit_columns(image: np.ndarray, r: np.ndarray, c: np.ndarray) -> dict:
+def _fit_columns(image: np.ndarray, r: np.ndarray, c: np.ndarray, pixel_filter=None) -> dict:
     """The model on windows of rows ``r - M .. r + M``, columns ``c - 1 .. c + 1`` of ``image`` (H, W, C):
     fitted once, then once more at the pixel the edge really crosses when that is a neighbour."""
-    fit = _fit_once(image, r, c)
+    fit = _fit_once(image, r, c, pixel_filter)
     shift = np.where(fit["valid"], np.rint(fit["offset"]), 0).astype(np.int64)
     moved = np.nonzero(shift != 0)[0]
     if len(moved):
-        again = _fit_once(image, r[moved] + shift[moved], c[moved])
+        again = _fit_once(image, r[moved] + shift[moved], c[moved], pixel_filter)
         for name, value in again.items():
             fit[name][moved] = value
     fit["valid"] &= np.abs(fit["offset"]) <= 0.5 + 1e-9
     return fit
 
 
-def _fit_once(image: np.ndarray, r: np.ndarray, c: np.ndarray) -> dict:
+def _variance(pixel_filter) -> float:
+    """The second moment (px²) along one axis of a pixel filter (None: the box's 1/12)."""
+    if pixel_filter is None:
+        return 1.0 / 12.0
+    offsets, weights = pixel_filter.nodes(4096)
+    return float(weights @ offsets[:, 0] ** 2)
+
+
+def _fit_once(image: np.ndarray, r: np.ndarray, c: np.ndarray, pixel_filter=None) -> dict:
     H, W, C = image.shape
     M = WINDOW
     inside = (r - M >= 0) & (r + M < H) & (c - 1 >= 0) & (c + 1 < W)
@@ -125,9 +141,9 @@ def _fit_once(image: np.ndarray, r: np.ndarray, c: np.ndarray) -> dict:
     yl, ym, yr = mean_y[:, 0], mean_y[:, 1], mean_y[:, 2]
     curv2 = 0.5 * (yl + yr - 2.0 * ym)  # y = a + b x + k x²: curv2 = k
     slope = 0.5 * (yr - yl)
-    offset = ym - curv2 / 12.0
+    offset = ym - curv2 * _variance(pixel_filter)
     ok &= np.isfinite(offset) & (np.abs(slope) <= 1.5) & (np.abs(offset) <= M - 1)
-    residual = _residual(s, sa, sb, mean_y, slope, curv2)
+    residual = _residual(s, sa, sb, mean_y, slope, curv2, pixel_filter)
     return {
         "across": r + 0.5 + offset,
         "along": c + 0.5,
@@ -143,16 +159,30 @@ def _fit_once(image: np.ndarray, r: np.ndarray, c: np.ndarray) -> dict:
     }
 
 
-def _residual(s, sa, sb, mean_y, slope, curv2) -> np.ndarray:
+def _residual(s, sa, sb, mean_y, slope, curv2, pixel_filter=None) -> np.ndarray:
     """RMS over the window of observed minus predicted profile, as a share of the mean jump.
 
     s : (n, 2M+1, 3) profiles; sa, sb : (n, 3) side values; mean_y : (n, 3) mean edge heights per column;
-    slope, curv2 : (n,) the parabola. Within each column the edge is taken as its tangent line.
+    slope, curv2 : (n,) the parabola. Within each column the edge is taken as its tangent line; a ``pixel_filter``
+    other than the box (None) predicts with its step share across that line (``dfc.pixel_model.step_share``).
     """
     M = WINDOW
     k = np.arange(-M, M + 1, dtype=np.float64)[None, :, None]  # rows
-    col_slope = np.abs(slope[:, None] + 2.0 * curv2[:, None] * np.arange(-1, 2)[None, :])  # (n, 3)
+    signed = slope[:, None] + 2.0 * curv2[:, None] * np.arange(-1, 2)[None, :]  # (n, 3)
+    col_slope = np.abs(signed)
     centre = k + 0.5 - mean_y[:, None, :]  # height of the row's bottom above the edge, at the column's centre
+    if pixel_filter is not None and not (pixel_filter.name == "box" and pixel_filter.param is None):
+        from ...pixel_model import step_share
+
+        norm = np.sqrt(1.0 + signed**2)  # the tangent y = m x: the row side lies at y > m x, normal (−m, 1)/norm
+        d = np.broadcast_to((centre - 0.5) / norm[:, None, :], s.shape).ravel()
+        normal = np.stack([np.broadcast_to(-signed[:, None, :] / norm[:, None, :], s.shape).ravel(),
+                           np.broadcast_to(1.0 / norm[:, None, :], s.shape).ravel()], axis=1)
+        cover = step_share(pixel_filter, d, normal).reshape(s.shape)
+        predicted = sa[:, None, :] + (sb - sa)[:, None, :] * cover
+        jump = np.abs(sb - sa).mean(axis=1)
+        rms = np.sqrt(np.mean((s - predicted) ** 2, axis=(1, 2)))
+        return rms / np.where(jump > 0, jump, np.inf)
     half = 0.5 * col_slope[:, None, :]
     lo, hi = centre - half, centre + half
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -168,9 +198,10 @@ def _ramp_integral(t: np.ndarray) -> np.ndarray:
     return np.where(t <= 0, 0.0, np.where(t >= 1, t - 0.5, 0.5 * t * t))
 
 
-def residual_of_blur(sigma: float) -> float:
-    """The largest ``residual`` of straight steps blurred by a Gaussian of ``sigma`` px (box-filtered pixels,
-    8 directions from 0° to 45°, 4 sub-pixel offsets): the misfit up to which a profile counts as a jump."""
+def residual_of_blur(sigma: float, pixel_filter=None) -> float:
+    """The largest ``residual`` of straight steps blurred by a Gaussian of ``sigma`` px (pixels made with
+    ``pixel_filter``, None: the box; 8 directions from 0° to 45°, 4 sub-pixel offsets): the misfit up to which a
+    profile counts as a jump."""
     from scipy.special import ndtr
 
     size, ss = 2 * WINDOW + 7, 8
@@ -183,9 +214,26 @@ def residual_of_blur(sigma: float) -> float:
         for offset in (0.0, 0.25, 0.5, 0.75):
             d = (X - centre) * n[0] + (Y - centre - offset) * n[1]
             field = ndtr(d / sigma) if sigma > 0 else (d > 0).astype(np.float64)
-            image = field.reshape(size, ss, size, ss).mean(axis=(1, 3))[..., None]
+            image = _pixels(field, size, ss, pixel_filter)[..., None]
             r = int(centre + offset)
-            fit = edge_points(image, np.array([r]), np.array([int(centre)]), np.array([False]))
+            fit = edge_points(image, np.array([r]), np.array([int(centre)]), np.array([False]), pixel_filter)
             if fit.valid[0]:
                 worst = max(worst, float(fit.residual[0]))
     return worst
+
+
+def _pixels(fine: np.ndarray, size: int, ss: int, pixel_filter) -> np.ndarray:
+    """(size, size) pixels of a field sampled ``ss`` times per pixel and axis (``fine`` (size·ss, size·ss)), made
+    with ``pixel_filter`` (None: the box); the kernel's taps beyond the field's border repeat its edge."""
+    if pixel_filter is None or (pixel_filter.name == "box" and pixel_filter.param is None):
+        return fine.reshape(size, ss, size, ss).mean(axis=(1, 3))
+    m = int(np.ceil(pixel_filter.radius + 0.5))
+    k = np.arange(-m * ss, (m + 1) * ss)
+    taps = pixel_filter.taps((k + 0.5) / ss - 0.5) if pixel_filter.name != "point" else (k == ss // 2) * 1.0
+    if pixel_filter.name == "box":
+        n = int(pixel_filter.param)
+        centres = np.floor(((np.arange(n) + 0.5) / n) * ss).astype(int)
+        taps = np.isin(k, centres) / n
+    padded = np.pad(fine, m * ss, mode="edge")
+    rows = sum(w * padded[m * ss + t: m * ss + t + size * ss: ss] for t, w in zip(k, taps) if w)
+    return sum(w * rows[:, m * ss + t: m * ss + t + size * ss: ss] for t, w in zip(k, taps) if w)
