@@ -31,7 +31,7 @@ from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_m
                    sample_mesh_size, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
-from .train.fit import DEFAULT_STEPS, IMAGE_STEPS
+from .train.fit import BATCH_SIZE, DEFAULT_STEPS, IMAGE_STEPS
 
 __all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "default_steps", "encode_bands",
            "encode_fem", "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings",
@@ -410,13 +410,13 @@ def sample_steps(n_samples: int, batch_size: int) -> int:
     return max(DEFAULT_STEPS, math.ceil(SAMPLE_PASSES * n_samples / batch_size))
 
 
-def default_steps(kind: str, n_samples: int = 0, batch_size: int = 1 << 14) -> int:
+def default_steps(kind: str, n_samples: int = 0, batch_size: int | None = None) -> int:
     """Fit steps of an encode whose settings give none: ``IMAGE_STEPS`` for an image (read whole or in bands),
     ``sample_steps`` for a sample set of ``n_samples``, ``DEFAULT_STEPS`` for FEM data and frames. ``kind`` is one
-    of "image", "samples", "fem", "frames"."""
+    of "image", "samples", "fem", "frames"; ``batch_size`` None is ``dfc.train.fit.BATCH_SIZE``."""
     if kind == "image":
         return IMAGE_STEPS
-    return sample_steps(n_samples, batch_size) if kind == "samples" else DEFAULT_STEPS
+    return sample_steps(n_samples, batch_size or BATCH_SIZE) if kind == "samples" else DEFAULT_STEPS
 
 
 def _no_pixel_filter(settings, kind: str) -> None:

@@ -100,7 +100,8 @@ class MeshSettings:
 @dataclass(frozen=True)
 class FitSettings:
     """The fit (``dfc.train.fit``): ``steps`` optimiser steps (≥ 1; None: the input kind's default,
-    ``dfc.codec.default_steps``) of ``batch_size`` samples (≥ 1), ``dim`` feature channels per vertex (1..64), a
+    ``dfc.codec.default_steps``) of ``batch_size`` samples (≥ 1; None: ``dfc.train.fit.BATCH_SIZE``, for an image
+    read whole ``dfc.train.fit.image_batch_size`` of its pixels), ``dim`` feature channels per vertex (1..64), a
     decoder of ``layers`` hidden layers (≥ 1) of ``hidden`` units (≥ 1), the last ``qat_steps`` steps (≥ 0; None:
     a tenth) quantisation-aware, ``loss`` (one of ``LOSSES``; "auto": log-MSE for HDR values), ``seed`` (an integer:
     features, decoder and sampling), torch ``device`` (a name such as "cpu" or "cuda:1"), ``pixel_filter`` (images
@@ -108,7 +109,7 @@ class FitSettings:
     pixels, ``dfc.pixel_model``; ``dfc.codec.encode_image`` resolves it and hands the fit the filter itself)."""
 
     steps: int | None = None
-    batch_size: int = 1 << 14
+    batch_size: int | None = None
     dim: int = 5
     hidden: int = 64
     layers: int = 2
@@ -120,7 +121,7 @@ class FitSettings:
 
     def __post_init__(self):
         _integer(self, "steps", 1, optional=True)
-        _integer(self, "batch_size", 1)
+        _integer(self, "batch_size", 1, optional=True)
         _integer(self, "dim", 1, 64)
         _integer(self, "hidden", 1)
         _integer(self, "layers", 1)

@@ -73,14 +73,26 @@ def test_flat_keywords_attributes_and_replace():
 
 
 def test_fit_functions_take_the_fit_settings_or_keywords():
-    from dfc.train.fit import fit_settings
+    from dfc.train.fit import BATCH_SIZE, fit_settings
 
     settings, model_kw = fit_settings(FitSettings(steps=10, hidden=8), {"seed": 4, "activation": "sine"}, 3000)
-    assert settings == FitSettings(steps=10, hidden=8, seed=4)
+    assert settings == FitSettings(steps=10, hidden=8, seed=4, batch_size=BATCH_SIZE)
     assert model_kw == {"hidden": 8, "layers": 2, "activation": "sine"}
     assert fit_settings(None, {}, 3000)[0].steps == 3000
     with pytest.raises(SettingsError, match="batch_size"):
         fit_settings(None, {"batch_size": 0}, 3000)
+
+
+def test_image_fits_default_to_batches_of_a_sixteenth_of_their_pixels():
+    from dfc.train.fit import fit_settings, image_batch_size
+
+    sides = (4, 256, 362, 384, 512, 4096)
+    assert [image_batch_size(s * s) for s in sides] == [4096, 4096, 4096, 8192, 16384, 16384]
+    assert fit_settings(None, {}, 3000, image_batch_size(256 * 256))[0].batch_size == 4096
+    assert fit_settings(FitSettings(batch_size=300), {}, 3000, 4096)[0].batch_size == 300
+    from dfc.io.dfield import encoder_info
+
+    assert EncodeSettings().batch_size is None and "batch_size" not in encoder_info(EncodeSettings(), "json", {})
 
 
 # (dfc encode options, the EncodeSettings keywords they map to): impossible combinations the CLI and the API refuse

@@ -92,7 +92,9 @@ def _curves_arg(ctx, param, value):
 @click.option("--steps", type=int, default=None,
               help="Optimiser steps  [default: an image 3000; a sample set 12 passes over its samples, at least 1000; "
                    "FEM data and frames 1000].")
-@click.option("--batch-size", type=int, default=FitSettings.batch_size, show_default=True, help="Samples per step.")
+@click.option("--batch-size", type=int, default=None,
+              help="Samples per step  [default: 16384; an image read whole: a sixteenth of its pixels, as a power of "
+                   "two from 4096 to 16384].")
 @click.option("--dim", type=int, default=FitSettings.dim, show_default=True,
               help="Feature channels per vertex (1..64).")
 @click.option("--feature-bits", type=int, default=None,

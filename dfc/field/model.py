@@ -29,12 +29,12 @@ the writer quantises exactly as the forward does, ``dfc.io.dfield.to_contents``)
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as nnf
 from torch import Tensor, nn
 from torch.nn.utils import parametrize
 from torch.profiler import record_function
 
 from ..errors import DfcError, FormatError
+from .feature_field import weighted_rows
 from .mlp import ACTIVATIONS, MLP, OneBlob
 from .quantize import MAX_FEATURE_BITS, FakeFp16, FakeQuantize, FakeQuantizeWeights, check_weight_bits
 
@@ -120,7 +120,7 @@ class FieldModel(nn.Module):
                 raise ValueError("a precomputed query needs a field with a single time slice")
             else:
                 idx, w = query
-                F = nnf.embedding_bag(idx, self.field.bank[0], per_sample_weights=w, mode="sum")
+                F = weighted_rows(self.field.bank[0], idx, w)
             F = F.to(torch.float32)
         with record_function(DECODE):
             if self.encoding is not None:

@@ -26,8 +26,8 @@ from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "FitSettings", "fit", "fit_bands",
-           "fit_frames", "fit_image", "fit_samples", "fit_settings", "image_decoder_lr"]
+__all__ = ["BATCH_SIZE", "DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "FitSettings", "fit", "fit_bands",
+           "fit_frames", "fit_image", "fit_samples", "fit_settings", "image_batch_size", "image_decoder_lr"]
 
 DECODER_LR = 0.2
 """Image fits (``fit_image``, ``fit_bands``) train the decoder at this factor on the features' learning rate
@@ -98,6 +98,13 @@ DEFAULT_STEPS = 1000
 IMAGE_STEPS = 3000
 """Default optimiser steps of the image fits (``fit_image``, ``fit_bands``; ``--steps``). Why 3,000 and not 1,000:
 CHANGELOG.md, "Image fits run 3,000 steps"; docs/results.md, "Image fits run 3,000 steps"."""
+BATCH_SIZE = 1 << 14
+"""Default samples per step of every fit but that of a small image (``image_batch_size``)."""
+IMAGE_BATCH_PIXELS = 16
+"""An image fit's default batch is a power of two near its pixels over this (``image_batch_size``)."""
+MIN_IMAGE_BATCH = 4096
+"""The smallest default batch of an image fit. Why the image's pixels over 16, at least 4,096 and at most 16,384:
+CHANGELOG.md, "Small images fit in batches of a sixteenth of their pixels"."""
 DEFAULT_QAT_FRACTION = 0.1
 """Default share of the steps run quantisation-aware."""
 MAX_DROPPED_FRACTION = 0.5
@@ -109,13 +116,24 @@ MAX_CARRY_POINTS = 1 << 18
 _FIT_FIELDS = frozenset(f.name for f in fields(FitSettings))
 
 
-def fit_settings(settings: FitSettings | None, overrides: dict, default_steps: int) -> tuple[FitSettings, dict]:
+def image_batch_size(n_pixels: int) -> int:
+    """Default samples per step of a fit to an image of ``n_pixels``: the power of two nearest below
+    ``n_pixels / IMAGE_BATCH_PIXELS``, within ``MIN_IMAGE_BATCH`` .. ``BATCH_SIZE`` (4,096 for 256 × 256, 16,384 from
+    512 × 512 up)."""
+    return min(BATCH_SIZE, max(MIN_IMAGE_BATCH, 1 << max(0, (n_pixels // IMAGE_BATCH_PIXELS).bit_length() - 1)))
+
+
+def fit_settings(settings: FitSettings | None, overrides: dict, default_steps: int,
+                 default_batch: int = BATCH_SIZE) -> tuple[FitSettings, dict]:
     """(``settings`` with ``overrides`` that name ``FitSettings`` fields applied and ``steps`` None resolved to
-    ``default_steps``, ``FieldModel`` keywords: ``hidden`` and ``layers`` from them and the other ``overrides``).
-    Raises ``SettingsError`` for a value that breaks a ``FitSettings`` rule."""
+    ``default_steps``, ``batch_size`` None to ``default_batch``, ``FieldModel`` keywords: ``hidden`` and ``layers``
+    from them and the other ``overrides``). Raises ``SettingsError`` for a value that breaks a ``FitSettings``
+    rule."""
     settings = replace(settings or FitSettings(), **{k: v for k, v in overrides.items() if k in _FIT_FIELDS})
     if settings.steps is None:
         settings = replace(settings, steps=default_steps)
+    if settings.batch_size is None:
+        settings = replace(settings, batch_size=default_batch)
     model_kw = {k: v for k, v in overrides.items() if k not in _FIT_FIELDS}
     return settings, {"hidden": settings.hidden, "layers": settings.layers, **model_kw}
 
@@ -147,7 +165,7 @@ def fit_image(
     mesh : dfc.geometry.mesh.Mesh
     settings : ``dfc.settings.FitSettings`` (default: its defaults), of which
         steps : optimiser steps (None: ``IMAGE_STEPS``)
-        batch_size : samples per step (stratified, see ``image_sampler``)
+        batch_size : samples per step (stratified, see ``image_sampler``; None: ``image_batch_size`` of the image)
         dim : feature channels; hidden, layers : the decoder's
         seed : seeds features, decoder and sampling; the result is bit-identical on CPU for a seed
         loss : {"auto", "mse", "relmse", "logmse"}; "auto" is "logmse" for HDR images (``dfc.metrics.is_hdr``),
@@ -188,7 +206,7 @@ def fit_image(
     if channels is None:
         channels = getattr(image, "channels", None) or default_channels(pixels.shape[2])
     values = pixels.reshape(-1, pixels.shape[2])
-    settings, model_kw = fit_settings(settings, overrides, IMAGE_STEPS)
+    settings, model_kw = fit_settings(settings, overrides, IMAGE_STEPS, image_batch_size(len(values)))
     model, run = _new_model(values, mesh, channels, settings, (data_range, tonemap), model_kw)
     field = model.field
     if mixed_pixels not in ("drop", "keep"):

@@ -84,15 +84,17 @@ class _FilteredPixels:
         parts = self.epochs.take(self.batch_size, generator)
         pixel = torch.cat([order for order, _ in parts]).cpu()
         epoch = torch.cat([torch.full((len(order),), e, dtype=torch.int64) for order, e in parts])
-        count = self.count[pixel]
+        count = self.count.index_select(0, pixel)
         row = torch.repeat_interleave(torch.arange(len(pixel)), count)
         first = torch.repeat_interleave(torch.cumsum(count, 0) - count, count)
-        at = (torch.repeat_interleave(self.start[pixel] + ((epoch - 1) % self.sets) * self.total, count)
-              + torch.arange(len(row)) - first)
+        at = (torch.repeat_interleave(self.start.index_select(0, pixel) + ((epoch - 1) % self.sets) * self.total,
+                                      count) + torch.arange(len(row)) - first)
         device = self.xy.device
         at, row = at.to(device), row.to(device)
-        query = None if self.cache is None else (self.cache[0][at], self.cache[1][at])
-        return self.xy[at], self.values[pixel.to(device)], PixelWeights(row, self.weight[at], query)
+        # index_select: on the CPU about 3 times as fast as indexing with a tensor
+        query = None if self.cache is None else (self.cache[0].index_select(0, at), self.cache[1].index_select(0, at))
+        return (self.xy.index_select(0, at), self.values.index_select(0, pixel.to(device)),
+                PixelWeights(row, self.weight.index_select(0, at), query))
 
 
 def filtered_sampler(pixels: np.ndarray, domain, batch_size: int, pixel_filter: PixelFilter, filtered: np.ndarray,

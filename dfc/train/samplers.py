@@ -105,12 +105,12 @@ class _StratifiedPixels:
         rows = torch.cat([order + ((epoch - 1) % sets) * n for order, epoch in self.epochs.take(self.batch_size,
                                                                                                generator)])
         rows = rows.to(self.pixels.device)
-        pixel = self.keep[rows % n]
-        target = self.pixels[pixel]
+        pixel = self.keep.index_select(0, rows % n)  # index_select: on the CPU about 3 times as fast as [rows]
+        target = self.pixels.index_select(0, pixel)
         if self.cache is None:
             return self.grid.points(pixel, generator), target
         xy, idx, w = self.cache
-        return xy[rows], target, (idx[rows], w[rows])
+        return xy.index_select(0, rows), target, (idx.index_select(0, rows), w.index_select(0, rows))
 
 
 def image_sampler(image, domain, batch_size: int, *, device: str = "cpu", query=None, jitter_sets: int = 8,
@@ -159,10 +159,11 @@ class _ShuffledPoints:
 
     def __call__(self, step: int, generator: torch.Generator):
         rows = torch.cat([order for order, _ in self.epochs.take(self.batch_size, generator)]).to(self.xy.device)
+        xy, values = self.xy.index_select(0, rows), self.values.index_select(0, rows)
         if self.cache is None:
-            return self.xy[rows], self.values[rows]
+            return xy, values
         idx, w = self.cache
-        return self.xy[rows], self.values[rows], (idx[rows], w[rows])
+        return xy, values, (idx.index_select(0, rows), w.index_select(0, rows))
 
 
 def point_sampler(xy, values, batch_size: int, *, device: str = "cpu", query=None) -> Sampler:

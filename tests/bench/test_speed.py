@@ -69,3 +69,36 @@ def test_wos_benchmark_measures_the_encode_against_the_reference(tmp_path, capsy
     assert enc["bytes"] > 0 and enc["triangles"] > 0 and np.isfinite(enc["encoder_psnr"])
     assert 0 < enc["psnr"] < 100 and enc["mse_all"] >= 0 and 0 < row["raw_psnr"] < 100
     assert "encode" in stdout
+
+
+def test_training_psnr_is_the_last_epochs_mean_error_and_convergence_time_the_last_crossing():
+    from dfc.bench.speed.encode import time_to_within, training_psnr
+
+    # batches of 2 out of 4 points: an epoch is 2 steps; MSEs 1e-1, 1e-3, 1e-3, 1e-3
+    curve = training_psnr(np.array([10.0, 30.0, 30.0, 30.0]), 2, 4)
+    np.testing.assert_allclose(curve, [10.0, -10 * np.log10((0.1 + 0.001) / 2), 30.0, 30.0])
+    seconds = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    assert time_to_within(np.array([20.0, 29.95, 29.0, 29.95, 30.0]), seconds) == (4.0, 3)
+    assert time_to_within(np.array([30.0, 30.0]), seconds[:2]) == (1.0, 0)
+
+
+def test_encode_benchmark_times_the_fit_and_breaks_a_step_down(tmp_path, capsys):
+    out = tmp_path / "encode.json"
+    code, stdout, err = run(["benchmark", "encode", "--steps", "30", "--batch-size", "4096", "--profile-steps", "10",
+                             "--threads", "1", "--no-neighbour", "--json", out], capsys)
+    assert code == 0, err
+    figures = json.loads(out.read_text())
+    (r,) = figures["runs"]
+    assert (r["threads"], r["neighbour"], r["steps"], r["qat_steps"]) == (1, "none", 30, 3)
+    assert 0 < r["within_0.1dB_s"] <= r["fit_s"] and 0 <= r["within_0.1dB_step"] < 27
+    assert 5 < r["psnr"] < 100 and r["bytes"] > 0 and r["step_ms"] > 0 and r["qat_step_ms"] > 0
+    parts = figures["breakdown_ms_per_step"]
+    assert set(parts) == {"sampling", "interpolation", "MLP forward", "loss", "MLP backward",
+                          "interpolation backward", "optimiser"}
+    assert min(parts.values()) >= 0 and parts["MLP forward"] > 0 and parts["MLP backward"] > 0
+    assert "within 0.1 dB" in stdout and "per step" in stdout
+
+
+def test_encode_benchmark_wants_image_and_curves_together(capsys):
+    code, _, err = run(["benchmark", "encode", SAMPLES / "sample.exr", "--no-neighbour"], capsys)
+    assert code == 2 and "--curves" in err

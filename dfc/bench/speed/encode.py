@@ -91,6 +91,8 @@ def breakdown(run_encode, steps: int) -> dict[str, float]:
 @click.argument("image", required=False, type=click.Path(exists=True, dir_okay=False))
 @click.option("--curves", "curves_path", type=click.Path(exists=True, dir_okay=False),
               help="IMAGE's discontinuity curves (required with IMAGE).")
+@click.option("--fit-curves-to-image", "fit_curves", is_flag=True,
+              help="Scale the curves' domain onto the image's pixels (as dfc encode's option).")
 @click.option("--steps", type=click.IntRange(1), default=None, help="Fit steps  [default: the encode's].")
 @click.option("--batch-size", type=click.IntRange(1), default=None, help="Samples per step  [default: the encode's].")
 @click.option("--profile-steps", type=click.IntRange(0), default=100, show_default=True,
@@ -99,7 +101,7 @@ def breakdown(run_encode, steps: int) -> dict[str, float]:
 @NEIGHBOUR_OPTION
 @json_option
 @quiet_option
-def command(image: str | None, curves_path: str | None, steps: int | None, batch_size: int | None, profile_steps: int,
+def command(image: str | None, curves_path: str | None, fit_curves: bool, steps: int | None, batch_size: int | None, profile_steps: int,
             thread_counts: tuple[int, ...], neighbour: bool, json_path: str | None, quiet: bool) -> None:
     """Time to quality of an image encode (fit seconds, steps, 1x PSNR, time to within 0.1 dB of the final
     training PSNR) for each --threads count, alone and beside a busy neighbour, and a per-step breakdown."""
@@ -108,6 +110,7 @@ def command(image: str | None, curves_path: str | None, steps: int | None, batch
     from ...codec import EncodeSettings, encode_image
     from ...geometry.sources import read_curves
     from ...io.image import read_image
+    from ...train.fit import image_batch_size
 
     if (image is None) != (curves_path is None):
         raise click.UsageError("give IMAGE and --curves together (neither: the README's sample)")
@@ -122,7 +125,7 @@ def command(image: str | None, curves_path: str | None, steps: int | None, batch
 
     def run_encode(n_steps, callback):
         return encode_image(img, curves, settings if n_steps is None else EncodeSettings(**{**given, "steps": n_steps}),
-                            callback=callback)
+                            callback=callback, fit_curves=fit_curves)
 
     stats = {"image": image_path.name, "curves": curves_file.name, "width": w, "height": h, "runs": []}
     click.echo(f"{image_path.name} ({w} x {h}) with {curves_file.name}; settings: "
@@ -144,9 +147,10 @@ def command(image: str | None, curves_path: str | None, steps: int | None, batch
         ends_a = np.asarray(ends)
         seconds = ends_a - (ends_a[-1] - fit_s)  # since the fit began (it returns right after its last step)
         step_s = np.diff(ends_a)
-        curve = training_psnr(np.asarray(psnrs[:plain]), settings.batch_size, h * w)
+        batch = settings.batch_size or image_batch_size(h * w)
+        curve = training_psnr(np.asarray(psnrs[:plain]), batch, h * w)
         within_s, within_step = time_to_within(curve, seconds[:plain])
-        run = {"threads": threads, "neighbour": beside, "fit_s": fit_s, "steps": n, "qat_steps": qat,
+        run = {"threads": threads, "neighbour": beside, "fit_s": fit_s, "steps": n, "batch_size": batch, "qat_steps": qat,
                "setup_s": float(seconds[0] - step_s[:plain - 1].mean()) if plain > 1 else None,
                "step_ms": float(np.median(step_s[:plain - 1]) * 1e3) if plain > 1 else None,
                "qat_step_ms": float(np.median(step_s[plain:]) * 1e3) if qat > 1 else None,
