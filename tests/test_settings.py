@@ -83,11 +83,11 @@ def test_fit_functions_take_the_fit_settings_or_keywords():
         fit_settings(None, {"batch_size": 0}, 3000)
 
 
-def test_image_fits_default_to_batches_of_a_sixteenth_of_their_pixels():
+def test_image_fits_default_to_batches_of_their_pixels_over_256():
     from dfc.train.fit import fit_settings, image_batch_size
 
-    sides = (4, 256, 362, 384, 512, 4096)
-    assert [image_batch_size(s * s) for s in sides] == [4096, 4096, 4096, 8192, 16384, 16384]
+    sides = (4, 256, 1024, 1448, 1500, 2048, 4096)
+    assert [image_batch_size(s * s) for s in sides] == [4096, 4096, 4096, 4096, 8192, 16384, 16384]
     assert fit_settings(None, {}, 3000, image_batch_size(256 * 256))[0].batch_size == 4096
     assert fit_settings(FitSettings(batch_size=300), {}, 3000, 4096)[0].batch_size == 300
     from dfc.io.dfield import encoder_info

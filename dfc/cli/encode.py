@@ -93,8 +93,8 @@ def _curves_arg(ctx, param, value):
               help="Optimiser steps  [default: an image 3000; a sample set 12 passes over its samples, at least 1000; "
                    "FEM data and frames 1000].")
 @click.option("--batch-size", type=int, default=None,
-              help="Samples per step  [default: 16384; an image read whole: a sixteenth of its pixels, as a power of "
-                   "two from 4096 to 16384].")
+              help="Samples per step  [default: 16384; an image read whole: 4096 up to 1024 x 1024 pixels, 16384 "
+                   "from 2048 x 2048].")
 @click.option("--dim", type=int, default=FitSettings.dim, show_default=True,
               help="Feature channels per vertex (1..64).")
 @click.option("--feature-bits", type=int, default=None,

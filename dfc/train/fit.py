@@ -100,11 +100,11 @@ IMAGE_STEPS = 3000
 CHANGELOG.md, "Image fits run 3,000 steps"; docs/results.md, "Image fits run 3,000 steps"."""
 BATCH_SIZE = 1 << 14
 """Default samples per step of every fit but that of a small image (``image_batch_size``)."""
-IMAGE_BATCH_PIXELS = 16
+IMAGE_BATCH_PIXELS = 256
 """An image fit's default batch is a power of two near its pixels over this (``image_batch_size``)."""
 MIN_IMAGE_BATCH = 4096
-"""The smallest default batch of an image fit. Why the image's pixels over 16, at least 4,096 and at most 16,384:
-CHANGELOG.md, "Small images fit in batches of a sixteenth of their pixels"."""
+"""The smallest default batch of an image fit. Why 4,096 up to 1024 × 1024 pixels: CHANGELOG.md, "Image fits up to
+1024 × 1024 take batches of 4,096"."""
 DEFAULT_QAT_FRACTION = 0.1
 """Default share of the steps run quantisation-aware."""
 MAX_DROPPED_FRACTION = 0.5
@@ -118,8 +118,8 @@ _FIT_FIELDS = frozenset(f.name for f in fields(FitSettings))
 
 def image_batch_size(n_pixels: int) -> int:
     """Default samples per step of a fit to an image of ``n_pixels``: the power of two nearest below
-    ``n_pixels / IMAGE_BATCH_PIXELS``, within ``MIN_IMAGE_BATCH`` .. ``BATCH_SIZE`` (4,096 for 256 × 256, 16,384 from
-    512 × 512 up)."""
+    ``n_pixels / IMAGE_BATCH_PIXELS``, within ``MIN_IMAGE_BATCH`` .. ``BATCH_SIZE`` (4,096 up to 1024 × 1024 pixels,
+    16,384 from 2048 × 2048 up)."""
     return min(BATCH_SIZE, max(MIN_IMAGE_BATCH, 1 << max(0, (n_pixels // IMAGE_BATCH_PIXELS).bit_length() - 1)))
 
 

@@ -92,7 +92,7 @@ def test_encode_benchmark_times_the_fit_and_breaks_a_step_down(tmp_path, capsys)
     assert (r["threads"], r["neighbour"], r["steps"], r["qat_steps"]) == (1, "none", 30, 3)
     assert 0 < r["within_0.1dB_s"] <= r["fit_s"] and 0 <= r["within_0.1dB_step"] < 27
     assert 5 < r["psnr"] < 100 and r["bytes"] > 0 and r["step_ms"] > 0 and r["qat_step_ms"] > 0
-    parts = figures["breakdown_ms_per_step"]
+    parts = {row["part"]: row["ms_per_step"] for row in figures["breakdown"]}
     assert set(parts) == {"sampling", "interpolation", "MLP forward", "loss", "MLP backward",
                           "interpolation backward", "optimiser"}
     assert min(parts.values()) >= 0 and parts["MLP forward"] > 0 and parts["MLP backward"] > 0

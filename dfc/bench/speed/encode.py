@@ -164,7 +164,7 @@ def command(image: str | None, curves_path: str | None, fit_curves: bool, steps:
     if profile_steps:
         torch.set_num_threads(1)
         parts = breakdown(run_encode, profile_steps)
-        stats["breakdown_ms_per_step"] = parts
+        stats["breakdown"] = [{"part": k, "ms_per_step": v} for k, v in parts.items()]
         stats["breakdown_steps"] = profile_steps
         click.echo(f"per step, 1 thread, alone ({profile_steps} profiled steps, ms): "
                    + ", ".join(f"{k} {v:.2f}" for k, v in parts.items()), err=err)
