@@ -57,7 +57,7 @@ def _category(name: str) -> str | None:
     low = name.lower()
     if "backward" not in low or not low.startswith("autograd::engine::evaluate_function"):
         return None
-    return "interpolation backward" if ("embedding" in low or "gather" in low) else "MLP backward"
+    return "interpolation backward" if ("embedding" in low or "weightedrows" in low) else "MLP backward"
 
 
 def breakdown(run_encode, steps: int) -> dict[str, float]:
