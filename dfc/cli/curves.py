@@ -96,7 +96,7 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
         refined = refine_curves(image.pixels, curves, pixel_filter)
         curves = refined.curves
         summary["refined"] = refined.to_dict()
-        stats["refined"] = refined.summary()
+        stats["refinement"] = refined.summary()
         if refined.warning:
             stats["warning"] = refined.warning
 

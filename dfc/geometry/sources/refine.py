@@ -4,15 +4,17 @@ A pixel a sharp discontinuity crosses holds ``B + (A − B) S``: ``A`` and ``B``
 ``S`` the share of its pixel filter (``dfc.pixel_filter``) on ``A``'s side. Where the curve is off by a fraction of
 a pixel, ``S`` predicts the mixed pixels wrongly; this module moves the curves' control points until it predicts
 them best (least squares), before any mesh is built. It is a refinement pass against the pixels, not a joint fit
-with the field: the two sides are modelled locally, read from the image on the normal through each pixel
-``SIDE_NEAR + reach`` and ``SIDE_FAR + reach`` px from the curve (``reach``: the filter's effective radius, √2 ×
-for the diagonal) and extrapolated linearly to the pixel, as ``dfc.pixel_model`` reads them.
+with the field: the two sides are modelled locally, each as a plane read from the image (bilinear) at
+``SIDE_NEAR + reach`` and ``SIDE_FAR + reach`` px on the normal through the pixel's foot point and ``ALONG`` px
+either way along the curve (``reach``: the filter's effective radius, × √2 for the diagonal), so a smooth trend
+across or along the curve cancels; the predicted pixel is the filter's mean of side A's plane over its share and
+side B's over the rest.
 
 The share is differentiable in the control points: each pixel's filter is a fixed quadrature (``QUAD_POINTS``
 points of ``PixelFilter.nodes``), each point's signed distance to the curve is taken from the osculating parabola
 at the pixel's foot point (parameter held fixed within a round and found again between rounds: the distance's
-derivative in the parameter vanishes there), and the side test is a logistic of width ``SOFT`` px (annealed for
-point-sampled rasters, whose pixels hold no mixture). Only clean pixels count: the curve within the filter's
+derivative in the parameter vanishes there), and the side test is a logistic of width ``SOFT`` px (annealed,
+``SOFT_DISCRETE``, for filters of a few sub-samples: ``point`` and ``box:N``, whose pixels change in steps). Only clean pixels count: the curve within the filter's
 reach of the pixel follows that parabola within ``STRAIGHT`` px (no junction, corner or second curve), the side
 readings are clear of every other curve and inside the image, and the jump is at least ``MIN_JUMP`` of the
 image's range.
@@ -56,7 +58,8 @@ STRAIGHT = 0.1
 SIDE_NEAR, SIDE_FAR = 1.5, 3.0
 """Distances (px) beyond the filter's reach at which each side's value is read."""
 ALONG = 1.0
-"""Each side is read this far (px) along the curve either way of the foot point too: a plane per side."""
+"""Each side is read this far (px) along the curve either way of the foot point too: a plane per side, whose
+gradient enters the prediction of a mixed pixel (its filter weighs each side's plane over that side's share)."""
 MIN_JUMP = 0.05
 """Smallest jump, as a share of the image's value range, of a pixel that counts."""
 MAX_MOVE = 1.0
@@ -319,8 +322,10 @@ def _samples(cp: np.ndarray):
 
 
 def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None:
-    """The clean pixels of the module notes near curves ``cp`` (P, 4, 2) px: {"centre" (N, 2), "piece" (N,),
-    "t" (N,), "share" (N,) observed share on the normal's side}; None when there are none."""
+    """The clean pixels of the module notes near curves ``cp`` (P, 4, 2) px, None when there are none: {"centre"
+    (N, 2) px, "piece" (N,) and "t" (N,) of the foot point, "value" (N, C) the pixel, "side_b" (N, C) and "grad_b"
+    (N, C, 2) side B's plane at the centre (value, gradient per px), "jump" (N, C) and "grad_jump" (N, C, 2) side A's
+    plane minus side B's, "scale" (N,) 1 / |jump|}. Side A lies on the curve's normal side (tangent turned +90°)."""
     from scipy.ndimage import map_coordinates
     from scipy.spatial import cKDTree
 
