@@ -219,6 +219,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     fitted = pixels if value_map is None else value_map.normalise(pixels)
     clock = time.perf_counter()
     pixel_filter, detection = resolve(settings.pixel_filter, pixels, curves)
+    settings = replace(settings, pixel_filter=str(pixel_filter))  # recorded as resolved: auto writes the same file
     detect_s = time.perf_counter() - clock
     clock = time.perf_counter()
     settings, mesh = image_mesh_size(curves, settings, w * h)  # small images: a mesh and decoder sized to them
@@ -233,8 +234,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
 
     info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
                                                   "hdr": scale.tonemap,
-                                                  **({"curves": curves_info} if curves_info else {}),
-                                                  **({"pixel_model": detection.to_dict()} if detection else {})})
+                                                  **({"curves": curves_info} if curves_info else {})})
     stored = str(pixel_filter)
     model, seconds = _mesh_and_fit(fit_image, fitted, curves, settings, channels, callback, mesh=mesh,
                                    residual=residual, min_area=0.25,

@@ -26,6 +26,8 @@ PAGES = {
     "samples": "Sample sets (walk-on-spheres)",
     "physics": "Physics-informed solve",
     "fem": "Simulation data: FEM solutions and frame sequences",
+    "pixel-filters": "Pixel filters: fitting what made the input's pixels",
+    "units": "Units: fits that do not depend on the data's unit",
     "levers": "Rate and quality levers (the measurements behind CHANGELOG.md)",
     "speed": "Speed, memory and scale",
     "bench": "Other `dfc bench` runs",

@@ -167,7 +167,7 @@ def _command_line(prefix: str = "dfc benchmark") -> str | None:
 
 def publish_file(path: str | os.PathLike, title: str, page: str = "benchmark") -> None:
     """Rewrite the JSON object a benchmark wrote to ``path`` as a result file: its keys kept, the result-file keys
-    added (its lists of flat dicts as tables)."""
+    added (its own ``tables`` when it wrote them, else its lists of flat dicts as tables)."""
     from ..io.atomic import write_bytes_atomic
 
     data = json.loads(Path(path).read_text())
@@ -175,7 +175,7 @@ def publish_file(path: str | os.PathLike, title: str, page: str = "benchmark") -
         data = {"data": data}
     extra = {"schema": SCHEMA, "title": title, "page": page, "command": _command_line(),
              "date": datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"), "commit": git_commit(),
-             "machine": machine_note(), "source": "measured", "tables": tables_from_record(data)}
+             "machine": machine_note(), "source": "measured", "tables": data.get("tables") or tables_from_record(data)}
     write_bytes_atomic(path, (json.dumps({**extra, **{k: v for k, v in data.items() if k not in extra}},
                                          indent=2) + "\n").encode())
 

@@ -4,7 +4,9 @@ IIIF tile server and viewer of ``dfc.serve``, in the foreground until Ctrl-C or 
 from __future__ import annotations
 
 import ipaddress
+import os
 import sys
+from typing import NoReturn
 
 import click
 
@@ -95,8 +97,13 @@ def start(files, compare, host, port, threads, cache_mb, levels_beyond, json_pat
     return server
 
 
-def run(server, quiet: bool) -> None:
-    """Serve until Ctrl-C or SIGTERM (which ``dfc.cli.main`` turns into SystemExit), then close the socket."""
+def run(server, quiet: bool) -> NoReturn:
+    """Serve until Ctrl-C or SIGTERM (which ``dfc.cli.main`` turns into SystemExit), close the socket, stop the render
+    pool, and end the process with status 0.
+
+    The process ends with ``os._exit`` once its streams are flushed: nothing is left to write or remove then, and
+    the interpreter's own finalisation aborted about one stop in twenty ("terminate called without an active
+    exception", status -6, from a C++ static destructor of an extension library, with no Python thread left)."""
     try:
         server.serve_forever(poll_interval=0.25)
     except (KeyboardInterrupt, SystemExit):
@@ -106,6 +113,9 @@ def run(server, quiet: bool) -> None:
         server.app.close()
     if not quiet:
         click.echo("dfc serve: stopped", err=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)
 
 
 def _compare_id(ident: str, taken: list[str]) -> str:

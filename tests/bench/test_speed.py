@@ -69,3 +69,57 @@ def test_wos_benchmark_measures_the_encode_against_the_reference(tmp_path, capsy
     assert enc["bytes"] > 0 and enc["triangles"] > 0 and np.isfinite(enc["encoder_psnr"])
     assert 0 < enc["psnr"] < 100 and enc["mse_all"] >= 0 and 0 < row["raw_psnr"] < 100
     assert "encode" in stdout
+
+
+def test_pixel_filter_benchmark_writes_its_tables(tmp_path, capsys):
+    from dfc.bench.pixel_filters import ASSUMED, GENERATIONS
+    from dfc.bench.results import validate
+
+    out = tmp_path / "pf.json"
+    code, stdout, err = run(["benchmark", "pixel-filter", "--size", "32", "--steps", "3", "--target-bytes", "6000",
+                             "--json", out], capsys)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert validate(doc) == [] and doc["source"] == "measured"
+    one_x, zoom, auto = doc["tables"]
+    assert one_x["columns"] == ["made with", *ASSUMED] and [r[0] for r in one_x["rows"]] == list(GENERATIONS)
+    assert all(np.isfinite(v) for r in one_x["rows"] + zoom["rows"] for v in r[1:])
+    assert len(auto["rows"]) == len(GENERATIONS) + 2 and "auto chose" in stdout
+
+
+def test_gpu_benchmark_without_cuda_says_so_in_one_line(monkeypatch, capsys):
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    code, stdout, err = run(["benchmark", "gpu"], capsys)
+    assert code == 0, err
+    assert len((stdout + err).strip().splitlines()) == 1 and "no CUDA device" in stdout
+
+
+def test_gpu_benchmark_table_on_cpu(tmp_path, capsys):
+    out = tmp_path / "gpu.json"
+    code, stdout, err = run(["benchmark", "gpu", "--device", "cpu", "--sides", "32", "--fit-steps", "2",
+                             "--batch-size", "256", "--render-side", "64", "--encode-steps", "2", "--json", out],
+                            capsys)
+    assert code == 0, err
+    rows = json.loads(out.read_text())["rows"]
+    whats = [r["what"] for r in rows]
+    assert whats[:3] == ["decode 32², anti-aliased (box)", "decode 32², point", "decode 32², point, on the device alone"]
+    assert sum(w.startswith("fit ") for w in whats) == 2 and sum(w.startswith("encode ") for w in whats) == 2
+    assert all(r["value"] > 0 and r["cpu_value"] is None and r["peak_mb"] is None for r in rows)
+    assert "missed" in stdout or "met" in stdout
+
+
+def test_gpu_table_ratio_and_targets():
+    from dfc.bench.speed.gpu import format_table
+
+    lines = format_table([
+        {"what": "decode", "device": "cuda", "value": 0.5, "unit": "ms/MP", "cpu_value": 50.0, "target": 1.0},
+        {"what": "fit", "device": "cuda", "value": 5e7, "unit": "samples/s", "cpu_value": 1e6, "target": 1e8,
+         "peak_mb": 1234.0},
+        {"what": "encode", "device": "cuda", "value": 4.0, "unit": "s"},
+    ])
+    assert len(lines) == 4
+    assert "100.0x" in lines[1] and "met (<= 1)" in lines[1]
+    assert "50.0x" in lines[2] and "missed (>= 1e+08)" in lines[2] and "1234" in lines[2]
+    assert lines[3].rstrip().endswith("s")

@@ -10,11 +10,9 @@ are not dfc's best rate.
 
 from __future__ import annotations
 
-import json
-
 import click
 
-from ...io.atomic import write_bytes_atomic
+from ...command import threads_option, write_json
 
 
 @click.command()
@@ -23,6 +21,7 @@ from ...io.atomic import write_bytes_atomic
 @click.option("--target-bytes", type=click.IntRange(min=1), default=8000, show_default=True,
               help="Byte target of every encode of the table (no refinement round).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), help="Also write the results as JSON.")
+@threads_option
 def command(size, steps, target_bytes, json_path):
     """Encode one scene rasterised with each pixel filter, assuming each filter and auto: a 4 x 5 table of the 1x
     PSNR at equal bytes and the 100x PSNR on edges against the exact scene; then the point-sampled raster at the
@@ -43,14 +42,25 @@ def command(size, steps, target_bytes, json_path):
     cell = {(r["generation"], r["assumed"]): r for r in result["rows"]}
     zoom_title = (f"{result['zoom']:g}x PSNR (dB) on {len(result['probes'])} edge windows against the exact "
                   "scene")
+    tables = []
     for title, key in (("1x PSNR (dB) against the raster, at equal bytes", "psnr_1x"), (zoom_title, "psnr_zoom")):
         click.echo(f"\n{title}; rows: how the raster was made, columns: the filter the encode assumed")
         click.echo(f"{'':>20}" + "".join(f"{a:>21}" for a in assumed))
         for g in generations:
             click.echo(f"{g:>20}" + "".join(f"{cell[(g, a)][key]:>21.2f}" for a in assumed))
+        tables.append({"title": f"{title}; rows: how the raster was made, columns: the filter the encode assumed",
+                       "columns": ["made with", *assumed],
+                       "rows": [[g, *(round(cell[(g, a)][key], 2) for a in assumed)] for g in generations]})
+    tables.append({"title": "auto's choice and the point-sampled raster at the default rate",
+                   "columns": ["raster", "assumed", "chosen", "bytes", "1x PSNR (dB)"],
+                   "rows": [[g, "auto", cell[(g, "auto")]["chosen"], cell[(g, "auto")]["bytes"],
+                             round(cell[(g, "auto")]["psnr_1x"], 2)] for g in generations]
+                   + [["point (default rate)", r["assumed"], r["assumed"], r["bytes"], round(r["psnr_1x"], 2)]
+                      for r in result["default_rate"]]})
+    result = {"tables": tables, **result}
     click.echo("\nauto chose: " + ", ".join(f"{g} -> {cell[(g, 'auto')]['chosen']}" for g in generations))
     for r in result["default_rate"]:
         click.echo(f"point-sampled raster at the default rate assuming {r['assumed']}: {r['psnr_1x']:.2f} dB in "
                    f"{r['bytes']} bytes")
     if json_path:
-        write_bytes_atomic(json_path, (json.dumps(result, indent=1) + "\n").encode())
+        write_json(json_path, result)
