@@ -102,10 +102,10 @@ class Refined:
                 f"of the jump, control points moved ≤ {float(self.moved.max(initial=0.0)):.3f} px")
 
     def to_dict(self) -> dict:
-        """The record a summary or a file's encoder info keeps."""
-        return {"pixels": self.pixels, "misfit_before": round(self.misfit_before, 5),
-                "misfit_after": round(self.misfit_after, 5), "max_move_px": round(float(self.moved.max(initial=0.0)), 4),
-                "warning": self.warning}
+        """The record a summary or a file's encoder info keeps (short: it goes into every file's header)."""
+        out = {"pixels": self.pixels, "misfit_before": round(self.misfit_before, 4),
+               "misfit_after": round(self.misfit_after, 4), "max_move_px": round(float(self.moved.max(initial=0.0)), 3)}
+        return {**out, "warning": self.warning} if self.warning else out
 
 
 def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, rounds: int = ROUNDS) -> Refined:
