@@ -87,15 +87,27 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
     stats["pixel_filter"] = str(pixel_filter) + (f" (auto: {detection.evidence()})" if detection else " (as given)")
     summary = {"width": image.width, "height": image.height, "channels": image.channels,
                "settings": settings.to_dict(), "pixel_model": detection.to_dict() if detection else None}
+    before = None
+    if o["refine"]:
+        from ..geometry.sources.refine import refine_curves
+
+        progress("refine")
+        before = curves
+        refined = refine_curves(image.pixels, curves, pixel_filter)
+        curves = refined.curves
+        summary["refined"] = refined.to_dict()
+        stats["refinement"] = refined.summary()
+        if refined.warning:
+            stats["warning"] = refined.warning
 
     def draw(curves, preview):
-        draw_curves(curves, preview, background=image.pixels, hdr=image.hdr)
+        draw_curves(curves, preview, background=image.pixels, hdr=image.hdr, before=before)
 
     return curves, summary, draw
 
 
 SOURCES = (Source("Mitsuba 3 scene", _is_scene, _from_scene, SCENE_OPTIONS),
-           Source("image", _is_image, _from_image, (*IMAGE_OPTIONS, "pixel_filter")))
+           Source("image", _is_image, _from_image, (*IMAGE_OPTIONS, "pixel_filter", "refine")))
 """Tried in order on the input path; the first that accepts it extracts the curves."""
 
 
@@ -145,6 +157,10 @@ def _source(path: Path, ctx: click.Context) -> Source:
               help="Image: how its pixels were made (auto, point, box[:N], gaussian[:STDDEV], tent, "
                    "blackman-harris[:WIDTH], mitchell): the sub-pixel step model's kernel; auto detects it along the "
                    "curves found with the box, as dfc encode does.")
+@click.option("--refine", is_flag=True,
+              help="Image: move the curves' control points until the pixels they cross are explained by sharp steps "
+                   "seen through the pixel filter (dfc.geometry.sources.refine); the preview shows the curves before "
+                   "(thin, grey) and after.")
 @click.option("--preview", type=click.Path(dir_okay=False),
               help="Also draw the curves over the input (a scene: a flat-shaded picture of it) to this PNG.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
@@ -212,7 +228,9 @@ def _print_summary(summary: dict, stats: dict, output: str, preview: str | None,
     echo(f"{summary['curves']} curves, {summary['pieces']} pieces ({summary['lines']} lines, "
          f"{summary['cubics']} cubics), {summary['length_px']:.0f} px long, in {summary['seconds']:.2f} s")
     for key, value in stats.items():
-        if not key.endswith("_s"):
+        if key == "warning":
+            click.echo(f"dfc: warning: {value}", err=True)
+        elif not key.endswith("_s"):
             echo(f"{key.replace('_', ' '):>22}: {value}")
     seconds = {k[:-2]: v for k, v in stats.items() if k.endswith("_s")}
     if seconds:

@@ -121,6 +121,10 @@ def _curves_arg(ctx, param, value):
               help="Image: how its pixels were made from the scene: auto, point, box[:N], gaussian[:STDDEV], tent, "
                    "blackman-harris[:WIDTH] or mitchell; fitted and stored for the decoder  [default: auto, found in "
                    "the pixels near the curves].")
+@click.option("--refine-curves/--no-refine-curves", "refine_curves", default=None,
+              help="Image read whole: before the mesh is built, move the curves' control points until the pixels they "
+                   "cross are explained by sharp steps seen through the pixel filter (dfc curves --refine)  "
+                   "[default: on with --curves auto, off with a curves file].")
 @click.option("--device", default=FitSettings.device, show_default=True,
               help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
@@ -144,7 +148,7 @@ def _curves_arg(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling,
-            reference_path, json_path, quiet, **setting_options):
+            reference_path, refine_curves, json_path, quiet, **setting_options):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
     sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
@@ -187,6 +191,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             raise click.UsageError(f"--pixel-filter applies to images, not {kind} input")
         if curves_path == "auto" and kind != "image":
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
+        if refine_curves and kind != "image":
+            raise click.UsageError(f"--refine-curves refines curves against an image's pixels, not {kind} input")
         if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
             raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
                                      param_hint="'--workers'")
@@ -201,6 +207,10 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         if pixel_filter is not None and out_of_core:
             raise click.UsageError("--pixel-filter applies to an image read whole, not out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096)")
+        if refine_curves and out_of_core:
+            raise click.UsageError("--refine-curves reads the whole image; for an image read out of core "
+                                   "(--epoch-pixels, --workers, torchrun, EXR above 4096x4096) refine its curves with "
+                                   "dfc curves IMAGE --refine first")
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
@@ -213,10 +223,16 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         if settings.steps is None:  # resolved here for the progress bar
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
                                                              settings.batch_size))
+        used = None
         if curves_path == "auto":
-            curves, curves_info = _auto_curves(signal, settings.pixel_filter)
+            curves, curves_info, used = _auto_curves(signal, settings.pixel_filter)
         else:
             curves = read_curves_checked(curves_path, quiet)
+        refined = None
+        if refine_curves or (refine_curves is None and curves_path == "auto" and not out_of_core):
+            curves, refined = _refined_curves(signal, curves, settings.pixel_filter, used, fit_curves_to_image, quiet)
+            if curves_info is not None:
+                curves_info = {**curves_info, "refined": refined.to_dict()}
         input_bytes = sum(os.path.getsize(p) for p in paths)
         if out_of_core:
             # read band by band while the input (or its spooled copy) is there
@@ -239,7 +255,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         out.flush()
     else:
         write_bytes_atomic(output, blob)
-    _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path))
+    _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path), refined)
     if report.target_psnr is not None and report.psnr < report.target_psnr:
         what = "--target-psnr" if target_psnr is not None else "the default FEM target of"
         note(f"{what} {report.target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
@@ -254,7 +270,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         from dataclasses import asdict
 
         write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
-                               **({"curves": curves_info} if curves_info else {}), **asdict(report)})
+                               **({"curves": curves_info} if curves_info else {}),
+                               **({"refined_curves": refined.to_dict()} if refined else {}), **asdict(report)})
 
 
 def encode_settings(options: dict):
@@ -290,18 +307,38 @@ def _auto_curves(image, pixel_filter: str = "auto"):
     record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
               "settings": extractor.to_dict(), "pixel_filter": str(used), "curves": curves.n_curves,
               "pieces": len(curves)}
-    return replace(curves, source="auto"), record
+    return replace(curves, source="auto"), record, used
 
 
-def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool) -> None:
+def _refined_curves(image, curves, pixel_filter: str, used, fit_curves_to_image: bool, quiet: bool):
+    """(curves, ``Refined``) of ``--refine-curves``: ``curves`` on the image's domain (as the encoder takes them:
+    ``dfc.codec.check_domain``) refined against its pixels through ``used`` (the extractor's filter) or the filter of
+    spec ``pixel_filter`` ("auto": detected along the curves, as the encoder does); a warning line when they are left
+    as given."""
+    from ..codec import check_domain
+    from ..geometry.sources.refine import refine_curves
+    from ..pixel_model import resolve
+
+    curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
+    if used is None:
+        used = resolve(pixel_filter, image.pixels, curves)[0]
+    refined = refine_curves(image.pixels, curves, used)
+    if refined.warning and not quiet:
+        click.echo(f"dfc: warning: {refined.warning}", err=True)
+    return refined.curves, refined
+
+
+def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool, refined=None) -> None:
     """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times; where the curves came
-    from when they were extracted."""
+    from when they were extracted, and their refinement (``refined``) when they were refined."""
     unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
     lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
     if curves_info:
         lines.append(f"curves: {curves_info['curves']} curves ({curves_info['pieces']} pieces) found in the image by "
                      "dfc curves' extractor at its defaults (recorded in the file; see them with dfc curves IMAGE "
                      "--preview P.png)")
+    if refined is not None:
+        lines.append(f"curves refined against the pixels: {refined.summary()}")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
     if report.units:

@@ -58,16 +58,18 @@ def draw_mesh(mesh: Mesh, path: str | Path, *, size: int = 1024) -> None:
         image.save(tmp, format="PNG")
 
 
+_BEFORE = (128, 128, 128)
 _PALETTE = [(255, 60, 60), (40, 200, 255), (255, 210, 0), (90, 230, 90), (255, 120, 220), (255, 150, 40)]
 
 
 def draw_curves(curves: Curves, path: str | Path, *, background: np.ndarray | None = None, hdr: bool = False,
-                size: int = 1024) -> None:
+                size: int = 1024, before: Curves | None = None) -> None:
     """Draw ``curves`` over ``background`` to a PNG, the domain's long side ``size`` pixels wide.
 
     background : (H, W, C) linear values over the whole domain (grey, grey + alpha, RGB or RGBA; other channel
         counts show their first channel), shown as sRGB (tone-mapped when ``hdr``), nearest-neighbour
         enlarged so its pixels stay visible; default a white page
+    before : the same curves before a change (``dfc curves --refine``), drawn over them one pixel wide in grey
     Each input curve gets a colour of its own; piece ends are dots.
     """
     from .image import linear_to_srgb, tonemap
@@ -97,6 +99,9 @@ def draw_curves(curves: Curves, path: str | Path, *, background: np.ndarray | No
         for p in (np.concatenate([cp[:, 0], cp[-1:, 3]]) - np.array([x0, y0])) * scale:
             r = line_width + 1
             draw.ellipse([p[0] - r, p[1] - r, p[0] + r, p[1] + r], fill=colour)
+    if before is not None:
+        for line in (bezier.flatten(before.control_points, _CURVE_SAMPLES) - np.array([x0, y0])) * scale:
+            draw.line([tuple(p) for p in line], fill=_BEFORE, width=1)
     with atomic_path(path) as tmp:
         image.save(tmp, format="PNG")
 

@@ -156,3 +156,37 @@ def test_gpu_table_ratio_and_targets():
     assert "100.0x" in lines[1] and "met (<= 1)" in lines[1]
     assert "50.0x" in lines[2] and "missed (>= 1e+08)" in lines[2] and "1234" in lines[2]
     assert lines[3].rstrip().endswith("s")
+
+
+def test_curves_auto_benchmark_measures_before_and_after_refinement(tmp_path, capsys):
+    """``dfc benchmark curves-auto --pixel-filter F``: a row per stage (found, refined) with its localisation."""
+    pytest.importorskip("skimage")
+    from dfc.bench.results import validate
+
+    out = tmp_path / "ca.json"
+    code, stdout, err = run(["benchmark", "curves-auto", "--scene", "shapes", "--size", "96", "--pixel-filter",
+                             "box:4", "--json", out], capsys)
+    assert code == 0, err
+    doc = json.loads(out.read_text())
+    assert validate(doc) == []
+    found, refined = doc["localisation"]
+    assert (found["stage"], refined["stage"]) == ("found", "refined") and found["filter"] == "box:4"
+    assert found["pieces"] == refined["pieces"] and refined["mean_px"] < 0.8 * found["mean_px"]
+    assert " refined " in stdout
+
+
+def test_curves_auto_zoom_row_encodes_three_curve_sets_at_equal_bytes():
+    """``zoom_row``: the extracted curves' file sets the byte target of the true and the refined curves' files."""
+    from dataclasses import replace
+
+    from dfc.bench.pixel_filters import filtered_raster
+    from dfc.bench.speed.curves_auto import zoom_row
+
+    from ..geometry.test_refine import _quad_and_disc
+
+    scene = _quad_and_disc()
+    pixels = filtered_raster(scene, 56, 56, "box")
+    moved = replace(scene.curves, control_points=scene.curves.control_points + 0.2)
+    row = zoom_row(scene, pixels, moved, scene.curves, steps=2)
+    assert row["true_bytes"] <= row["auto_bytes"] and row["refined_bytes"] <= row["auto_bytes"]
+    assert all(np.isfinite(row[f"{k}_{z}x"]) for k in ("true", "auto", "refined") for z in (33, 100))

@@ -127,3 +127,68 @@ def test_auto_curves_without_the_extra_name_it(disc_exr, tmp_path, capsys, monke
     code, _, err = run(["encode", disc_exr, "--curves", "auto", "-o", tmp_path / "x.dfield"], capsys)
     assert_one_line_error(code, err, "pip install 'dfc[curves]'")
     assert not (tmp_path / "x.dfield").exists()
+
+
+def test_refine_writes_the_refined_curves_and_a_before_after_preview(disc_exr, tmp_path, capsys):
+    """``dfc curves IMAGE --refine``: the disc's curves end closer to its circle than the extractor put them."""
+    from dfc.geometry import bezier
+
+    def off_circle(curves):
+        points = bezier.flatten(curves.control_points, 32).reshape(-1, 2)
+        return float(np.abs(np.linalg.norm(points - (24.2, 19.7), axis=1) - 11.5).mean())
+
+    plain, refined, preview = tmp_path / "plain.json", tmp_path / "refined.json", tmp_path / "p.png"
+    assert run(["curves", disc_exr, "-o", plain, "-q"], capsys)[0] == 0
+    code, stdout, err = run(["curves", disc_exr, "-o", refined, "--refine", "--preview", preview, "--json", "-"],
+                            capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["refined"]["pixels"] > 50 and "warning" not in summary["refined"]
+    assert summary["refined"]["misfit_after"] < summary["refined"]["misfit_before"]
+    assert "mixed pixels" in err  # the human summary goes to standard error beside --json -
+    before, after = read_json(plain), read_json(refined)
+    assert len(after) == len(before) and off_circle(after) < min(0.01, off_circle(before))
+    with Image.open(preview) as im:
+        assert im.format == "PNG"
+        grey = (np.asarray(im.convert("RGB")) == (128, 128, 128)).all(axis=2)
+        assert grey.sum() > 100  # the curves before refinement, drawn over the refined ones
+
+
+def test_encode_with_auto_curves_refines_them_by_default(disc_exr, tmp_path, capsys):
+    from dfc.cli.stats import file_stats
+
+    out = tmp_path / "disc.dfield"
+    args = ["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "2", "--batch-size", "256"]
+    code, stdout, err = run(args, capsys)
+    assert code == 0, err
+    assert "curves refined against the pixels" in stdout
+    assert file_stats(out)["encoder"]["curves"]["refined"]["pixels"] > 50
+    code, stdout, err = run([*args, "--no-refine-curves"], capsys)
+    assert code == 0 and "refined" not in stdout and "refined" not in file_stats(out)["encoder"]["curves"]
+
+
+@pytest.mark.parametrize("kind", ["samples", "fem", "frames", "outside"])
+def test_refine_curves_bad_input_is_one_error_line(kind, disc_exr, tmp_path, capsys):
+    """--refine-curves on a sample set, FEM or frames input, or with curves reaching outside the image: one line."""
+    from dfc.geometry.curves import Curves
+    from dfc.geometry.sources import write_json
+
+    curves = tmp_path / "c.json"
+    write_json(Curves((0.0, 0.0, 48.0, 40.0), np.array([[[5.0, 5.0], [20.0, 10.0], [35.0, 15.0], [50.0, 20.0]]]),
+                      [1], [0], [[0.0, 1.0]], ["stroke"], [None]), curves)
+    inputs = [disc_exr]
+    if kind == "samples":
+        xy = np.random.default_rng(0).random((200, 2)) * 8
+        np.savez(tmp_path / "s.npz", xy=xy, values=xy[:, :1], domain=[0, 0, 8, 8])
+        inputs, match = [tmp_path / "s.npz"], "not samples input"
+    elif kind == "fem":
+        (tmp_path / "m.vtu").write_text("<VTKFile/>")
+        inputs, match = [tmp_path / "m.vtu"], "not fem input"
+    elif kind == "frames":
+        inputs, match = [disc_exr, disc_exr, "--times", "0,1"], "not frames input"
+    else:
+        match = "'stroke' reaches outside the image"
+    out = tmp_path / "x.dfield"
+    code, _, err = run(["encode", *inputs, "--curves", curves, "--refine-curves", "-o", out, "--steps", "2"], capsys)
+    assert_one_line_error(code, err, match)
+    assert not out.exists()

@@ -9,6 +9,12 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 - recall: share of the true length within 0.5 px of an extracted curve;
 - false: share of the extracted length farther than 1 px from every true curve.
 
+``--pixel-filter SPEC`` (repeatable) makes the rasters with that pixel filter instead
+(``dfc.bench.pixel_filters.filtered_raster``), and the extractor detects the filter (``image_curves_filtered``,
+"auto"). With ``--refine`` (the default) the extracted curves are refined against the pixels
+(``dfc.geometry.sources.refine``) and measured again (stage ``refined``). ``--zoom-steps N`` adds the edge zoom PSNR
+at 33× and 100× of three encodes at equal bytes (``zoom_row``): the extracted, the true and the refined curves.
+
 ``--image FILE`` (repeatable) also runs the extractor on images without ground truth and prints counts.
 """
 
@@ -76,54 +82,137 @@ def counts(curves) -> dict:
             "cubics": int((curves.degree == 3).sum()), "length_px": round(length, 1)}
 
 
+def _raster(scene, w: int, h: int, spec: str | None, spp: int) -> np.ndarray:
+    """The scene's (h, w, C) raster: made with the pixel filter ``spec`` (``dfc.bench.pixel_filters.filtered_raster``),
+    or box-filtered with ``spp`` × ``spp`` points as the comparison harness does (None)."""
+    if spec is None:
+        return scene.render(w, h, spp=spp)
+    from ..pixel_filters import filtered_raster
+
+    return filtered_raster(scene, w, h, spec)
+
+
+def _in_pixels(scene, w: int, h: int):
+    """``scene`` over the raster's pixel units: its curves and its values (the domain's origin at 0)."""
+    from ..scenes import AnalyticScene
+
+    x0, y0, x1, y1 = scene.domain
+    scale = np.array([w / (x1 - x0), h / (y1 - y0)])
+    return AnalyticScene(scene.name, _to_pixels(scene.curves, *scale), scene.channels,
+                         lambda xy: scene.value(np.asarray(xy) / scale + [x0, y0]))
+
+
+def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int) -> dict:
+    """Edge zoom PSNR (``dfc.bench.speed.rate.measure``: 33× and 100× windows on the middle of every true curve,
+    against the exact scene) of three encodes of ``pixels`` at equal bytes, ``steps`` steps each (no mesh
+    refinement rounds): the extracted curves ``found`` at the default size, then the true curves and the refined
+    ones ``refined`` with that file's size as their byte target. ``scene`` is in the raster's pixel units."""
+    from ...codec import EncodeSettings, encode_image
+    from ...errors import TargetBytesError
+    from .rate import measure
+
+    row = {}
+    blob, _ = encode_image(pixels, found, EncodeSettings(steps=steps, refine=0))
+    target = len(blob)
+    for key, curves, b in (("auto", found, blob), ("true", scene.curves, None), ("refined", refined, None)):
+        if b is None:
+            try:
+                b, _ = encode_image(pixels, curves, EncodeSettings(steps=steps, target_bytes=target, refine=0))
+            except TargetBytesError as e:
+                row[f"{key}_refused"] = str(e)
+                continue
+        m = measure(scene, b, pixels)
+        row.update({f"{key}_bytes": m["bytes"], f"{key}_1x": round(m["psnr_1x"], 2),
+                    f"{key}_33x": round(m["edge_33x"], 2), f"{key}_100x": round(m["edge_100x"], 2)})
+    return row
+
+
 @click.command()
 @click.option("--scene", "scene_names", multiple=True, help="Scene(s) to run (default: all of dfc.bench.scenes).")
 @click.option("--size", type=click.IntRange(16, 4096), default=None,
               help="Longer side of the raster in pixels (default: the scene's longer side in its units).")
 @click.option("--spp", type=click.IntRange(1, 64), default=4, show_default=True,
               help="Points per pixel side of the box-filtered raster (the comparison harness uses 4).")
+@click.option("--pixel-filter", "filters", multiple=True, metavar="FILTER",
+              help="Make the rasters with this pixel filter instead (dfc.pixel_filter spec, e.g. box:16, gaussian:0.5, "
+                   "point; repeatable: one run per filter). The extractor detects the filter itself (auto).")
+@click.option("--refine/--no-refine", default=True, show_default=True,
+              help="Also refine the extracted curves against the pixels (dfc.geometry.sources.refine) and measure "
+                   "them again.")
+@click.option("--zoom-steps", type=click.IntRange(min=0), default=0, show_default=True,
+              help="With N > 0: encode each raster with the extracted, the true and the refined curves at equal bytes "
+                   "(N steps each) and print the edge PSNR at 33x and 100x (slow: three encodes per raster).")
 @click.option("--image", "images", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Also extract from this image (no ground truth: counts only); repeatable.")
 @click.option("--preview-dir", type=click.Path(file_okay=False), default=None,
               help="Draw each extraction over its image into this folder (NAME.png).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the figures to this JSON file.")
-def command(scene_names, size, spp, images, preview_dir, json_path):
-    """Distance, recall and false curves of the raster extractor against the analytic scenes' exact curves."""
+def command(scene_names, size, spp, filters, refine, zoom_steps, images, preview_dir, json_path):
+    """Distance, recall and false curves of the raster extractor against the analytic scenes' exact curves, before
+    and after refining them against the pixels; with --zoom-steps, edge zoom PSNR at equal bytes too."""
     from pathlib import Path
 
     from ...io.preview import draw_curves
-    from ...geometry.sources.raster import RasterSettings, image_curves
+    from ...geometry.sources.raster import RasterSettings, image_curves, image_curves_filtered
+    from ...geometry.sources.refine import refine_curves
     from ..scenes import SCENES, get_scene
 
     settings = RasterSettings()
-    results = {"settings": settings.to_dict(), "spp": spp, "scenes": {}, "images": {}}
-    click.echo("targets: mean ≤ 0.1 px, p95 ≤ 0.3 px, recall ≥ 95 %, false ≤ 5 %")
-    click.echo(f"{'scene':>8} {'size':>9} {'mean':>6} {'p95':>6} {'m.mean':>6} {'m.p95':>6} {'recall':>7} "
-               f"{'false':>6} {'curves':>6} {'pieces':>6} {'s':>6}")
+    results = {"settings": settings.to_dict(), "spp": spp, "scenes": {}, "images": {}, "localisation": [],
+               "zoom": []}
+    click.echo("targets: mean ≤ 0.1 px, p95 ≤ 0.3 px, recall ≥ 95 %, false ≤ 5 %; refined: mean ≤ 0.02 px, "
+               "p95 ≤ 0.05 px")
+    click.echo(f"{'scene':>8} {'filter':>13} {'size':>9} {'stage':>7} {'mean':>6} {'p95':>6} {'m.mean':>6} "
+               f"{'m.p95':>6} {'recall':>7} {'false':>6} {'curves':>6} {'pieces':>6} {'s':>6}")
+
+    def fmt(v, pct=False):
+        return "–" if v is None else (f"{100 * v:6.1f}%" if pct else f"{v:6.3f}")
+
     for name in scene_names or list(SCENES):
         scene = get_scene(name)
         x0, y0, x1, y1 = scene.domain
         longer = size or max(8, round(max(x1 - x0, y1 - y0)))
         scale = longer / max(x1 - x0, y1 - y0)
         w, h = max(1, round((x1 - x0) * scale)), max(1, round((y1 - y0) * scale))
-        pixels = scene.render(w, h, spp=spp)
-        clock = time.perf_counter()
-        found = image_curves(pixels, settings)
-        seconds = time.perf_counter() - clock
-        true = _to_pixels(scene.curves, w / (x1 - x0), h / (y1 - y0))
-        row = {**compare(true, found), **counts(found), "width": w, "height": h, "seconds": round(seconds, 3)}
-        results["scenes"][name] = row
-
-        def fmt(v, pct=False):
-            return "–" if v is None else (f"{100 * v:6.1f}%" if pct else f"{v:6.3f}")
-
-        click.echo(f"{name:>8} {w:>4}x{h:<4} {fmt(row['mean_px'])} {fmt(row['p95_px'])} {fmt(row['matched_mean_px'])} "
-                   f"{fmt(row['matched_p95_px'])} {fmt(row['recall'], True)} {fmt(row['false'], True)} "
-                   f"{row['curves']:>6} {row['pieces']:>6} {seconds:6.2f}")
-        if preview_dir:
-            Path(preview_dir).mkdir(parents=True, exist_ok=True)
-            draw_curves(found, Path(preview_dir) / f"{name}.png", background=pixels, hdr=float(pixels.max()) > 1.0)
+        exact = _in_pixels(scene, w, h)
+        for spec in filters or (None,):
+            label = spec or f"box:{spp}"
+            pixels = _raster(scene, w, h, spec, spp)
+            clock = time.perf_counter()
+            if spec is None:
+                found, used = image_curves(pixels, settings), None
+            else:
+                found, used, _ = image_curves_filtered(pixels, settings, "auto")
+            stages = [("found", found, time.perf_counter() - clock)]
+            if refine:
+                clock = time.perf_counter()
+                refined = refine_curves(pixels, found, used)
+                stages.append(("refined", refined.curves, time.perf_counter() - clock))
+                if refined.warning:
+                    click.echo(f"{name} {label}: {refined.warning}")
+            for stage, curves, seconds in stages:
+                row = {"scene": name, "filter": label, "detected": str(used) if used else None, "stage": stage,
+                       **compare(exact.curves, curves), **counts(curves), "width": w, "height": h,
+                       "seconds": round(seconds, 3)}
+                results["localisation"].append(row)
+                if stage == "found" and spec is None:
+                    results["scenes"][name] = row
+                click.echo(f"{name:>8} {label:>13} {w:>4}x{h:<4} {stage:>7} {fmt(row['mean_px'])} {fmt(row['p95_px'])} "
+                           f"{fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} {fmt(row['recall'], True)} "
+                           f"{fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} {seconds:6.2f}")
+            if zoom_steps and refine:
+                row = {"scene": name, "filter": label, "steps": zoom_steps,
+                       **zoom_row(exact, pixels, found, refined.curves, zoom_steps)}
+                results["zoom"].append(row)
+                click.echo(f"{name:>8} {label:>13} equal bytes ({row.get('auto_bytes')} B), edge PSNR 33x / 100x: "
+                           + "; ".join(f"{k} " + (f"{row[k + '_33x']:.2f} / {row[k + '_100x']:.2f} dB"
+                                                  if k + "_33x" in row else "refused")
+                                       for k in ("true", "auto", "refined")))
+            if preview_dir:
+                Path(preview_dir).mkdir(parents=True, exist_ok=True)
+                draw_curves(stages[-1][1], Path(preview_dir) / f"{name}_{label.replace(':', '_')}.png",
+                            background=pixels, hdr=float(pixels.max()) > 1.0, before=found if refine else None)
     for path in images:
         from ...io.image import read_image
 

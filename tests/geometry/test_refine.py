@@ -1,0 +1,182 @@
+"""Curve refinement against the pixels (``dfc.geometry.sources.refine``): known sub-pixel offsets come back through
+each pixel filter, junctions and T-junctions stay joined, curves stay inside the image, crossing curves are left as
+given with a warning, curves outside the image are refused."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from dfc.bench.pixel_filters import filtered_raster
+from dfc.bench.scenes import AnalyticScene, _pieces
+from dfc.bench.speed.curves_auto import compare
+from dfc.errors import InputError
+from dfc.geometry.sources.refine import crossings, refine_curves
+from dfc.pixel_filter import parse
+
+OFFSET = np.array([0.13, -0.09])
+
+
+def _quad_and_disc(size: float = 56.0) -> AnalyticScene:
+    """A quadrilateral (lines) and a disc (four cubics, within 0.003 px of the circle whose inside the values
+    follow): 0.85 and 0.1 on 0.45."""
+    quad = [(7.3, 8.2), (22.1, 9.0), (20.4, 45.2), (6.9, 43.7)]
+    c, r = np.array([40.2, 27.3]), 9.1
+    k = 0.5522847498 * r
+    circle = [(3, [(c[0] + r, c[1]), (c[0] + r, c[1] + k), (c[0] + k, c[1] + r), (c[0], c[1] + r)]),
+              (3, [(c[0], c[1] + r), (c[0] - k, c[1] + r), (c[0] - r, c[1] + k), (c[0] - r, c[1])]),
+              (3, [(c[0] - r, c[1]), (c[0] - r, c[1] - k), (c[0] - k, c[1] - r), (c[0], c[1] - r)]),
+              (3, [(c[0], c[1] - r), (c[0] + k, c[1] - r), (c[0] + r, c[1] - k), (c[0] + r, c[1])])]
+    chains = [("quad", [(1, [quad[i], quad[(i + 1) % 4]]) for i in range(4)]), ("disc", circle)]
+    curves = _pieces(chains, (0.0, 0.0, size, size))
+    poly = np.array(quad)
+
+    def value(xy):
+        a, b = poly, np.roll(poly, -1, axis=0)
+        cross = ((b[:, 0] - a[:, 0])[None] * (xy[:, 1:2] - a[:, 1][None])
+                 - (b[:, 1] - a[:, 1])[None] * (xy[:, 0:1] - a[:, 0][None]))
+        out = np.where(np.all(cross > 0, axis=1) | np.all(cross < 0, axis=1), 0.85, 0.45)
+        return np.where(np.hypot(*(xy - c).T) < r, 0.1, out)[:, None]
+
+    return AnalyticScene("quad and disc", curves, ["Y"], value)
+
+
+@pytest.fixture(scope="module")
+def shapes():
+    return _quad_and_disc()
+
+
+@pytest.mark.parametrize("spec, mean, p95", [("box", 0.01, 0.02), ("gaussian:0.5", 0.01, 0.02),
+                                             ("box:4", 0.015, 0.05)])
+def test_a_known_offset_comes_back_through_each_filter(shapes, spec, mean, p95):
+    """A raster made with the filter, its curves moved by (0.13, −0.09) px (0.11 px mean distance): the refined
+    curves lie within the tolerance of the true ones (box:4: its 4 x 4 sub-samples leave a near-horizontal edge
+    free within a quarter pixel, hence the wider p95)."""
+    pixels = filtered_raster(shapes, 56, 56, spec)
+    true = shapes.curves
+    moved = replace(true, control_points=true.control_points + OFFSET)
+    assert compare(true, moved)["mean_px"] > 0.1
+    refined = refine_curves(pixels, moved, parse(spec))
+    assert refined.warning is None and refined.pixels > 50
+    assert refined.misfit_after < refined.misfit_before
+    found = compare(true, refined.curves)
+    assert found["mean_px"] <= mean and found["p95_px"] <= p95, found
+    closed = refined.curves.control_points
+    for c in range(true.n_curves):  # each outline stays closed: its pieces still meet end to start
+        cp = closed[refined.curves.curve == c]
+        assert np.abs(cp[:, 3] - np.roll(cp[:, 0], -1, axis=0)).max() < 1e-9
+    lines = refined.curves.degree == 1  # lines stay lines
+    chord = closed[lines, 3] - closed[lines, 0]
+    np.testing.assert_allclose(closed[lines, 1], closed[lines, 0] + chord / 3, atol=1e-9)
+
+
+def test_point_samples_end_on_the_side_their_pixels_say(shapes):
+    """Point samples hold no mixture: a curve is only known to lie between pixel centres of different values. After
+    refinement the pixel centres lie on the side of the curves their values say (the moved curves get 56 wrong; one
+    may stay wrong at a corner, whose pixels are not fitted)."""
+    from dfc.bench.scenes import inside
+    from dfc.geometry import bezier
+
+    pixels = filtered_raster(shapes, 56, 56, "point")[..., 0]
+    true = shapes.curves
+    moved = replace(true, control_points=true.control_points + 3 * OFFSET)
+    jj, ii = np.mgrid[0:56, 0:56]
+    centres = np.stack([ii.ravel() + 0.5, jj.ravel() + 0.5], axis=1)
+
+    def wrong(curves):
+        outline = [bezier.flatten(curves.control_points[curves.curve == c], 64)[:, :-1].reshape(-1, 2) for c in (0, 1)]
+        made = np.where(inside(centres, outline[1]), 0.1, np.where(inside(centres, outline[0]), 0.85, 0.45))
+        return int((np.abs(made - pixels.ravel()) > 1e-6).sum())
+
+    assert wrong(true) == 0 and wrong(moved) > 50
+    refined = refine_curves(pixels, moved, parse("point"))
+    assert wrong(refined.curves) <= 1
+    assert compare(true, refined.curves)["mean_px"] < 0.5 * compare(true, moved)["mean_px"]
+
+
+def _sectors(size: float, centre, spec: str):
+    """(scene, raster made with ``spec``) of a Y junction at ``centre``: sectors of values 0.2, 0.55 and 0.9 between
+    rays at 90°, 210° and 330° to the border, the first cut by a T's stem (value 0.7 beyond it) from the middle of the
+    ray at 210° to the left border. Its curves: the three rays, then the stem."""
+    c = np.asarray(centre, dtype=np.float64)
+    angles = np.radians([90.0, 210.0, 330.0])
+    ends = []
+    for a in angles:
+        d = np.array([np.cos(a), np.sin(a)])
+        t = min(((0 if d[k] < 0 else size) - c[k]) / d[k] for k in (0, 1) if abs(d[k]) > 1e-12)
+        ends.append(c + t * d)
+    foot = c + 0.45 * (ends[1] - c)  # the stem's end on the ray at 210°
+    stem_end = np.array([0.0, foot[1] + 6.0])
+
+    def value(xy):
+        rel = xy - c
+        ang = np.degrees(np.arctan2(rel[:, 1], rel[:, 0])) % 360.0
+        out = np.where((ang >= 90) & (ang < 210), 0.2, np.where((ang >= 210) & (ang < 330), 0.55, 0.9))
+        # below the stem inside the 90..210 sector: another value
+        stem = stem_end - foot
+        side = stem[0] * (xy[:, 1] - foot[1]) - stem[1] * (xy[:, 0] - foot[0])
+        out = np.where((ang >= 90) & (ang < 210) & (side < 0), 0.7, out)
+        return out[:, None]
+
+    chains = [(f"ray {k}", [(1, [tuple(c), tuple(e)])]) for k, e in enumerate(ends)]
+    chains.append(("stem", [(1, [tuple(foot), tuple(stem_end)])]))
+    curves = _pieces(chains, (0.0, 0.0, size, size))
+    scene = AnalyticScene("sectors", curves, ["Y"], value)
+    return scene, filtered_raster(scene, int(size), int(size), spec)
+
+
+def test_junctions_and_t_junctions_stay_joined():
+    scene, pixels = _sectors(40.0, (20.3, 17.6), "box:8")
+    true = scene.curves
+    cp = true.control_points.copy()
+    cp[:3, 0] += OFFSET  # the Y junction moved: all three rays' start, and the stem's end with its ray
+    cp[3, 0] = cp[1, 0] + 0.45 * (cp[1, 3] - cp[1, 0])
+    cp[:, 1:3] = cp[:, 0:1] + (cp[:, 3:4] - cp[:, 0:1]) * np.array([1 / 3, 2 / 3])[None, :, None]
+    given = replace(true, control_points=cp)
+    refined = refine_curves(pixels, given, parse("box:8"))
+    out = refined.curves.control_points
+    assert refined.warning is None
+    assert np.abs(out[:3, 0] - out[0, 0]).max() < 1e-9  # the Y's rays still share their start
+    junction_error = np.linalg.norm(out[0, 0] - true.control_points[0, 0])
+    assert junction_error < 0.5 * np.linalg.norm(OFFSET)
+    ray = out[1]  # the stem's end still lies on the ray at 210° (a line: distance to its chord)
+    d = ray[3] - ray[0]
+    stem_start = out[3, 0]
+    assert abs(d[0] * (stem_start[1] - ray[0, 1]) - d[1] * (stem_start[0] - ray[0, 0])) / np.linalg.norm(d) < 1e-9
+    assert np.abs(out[:, 3][[0, 1, 2]] - true.control_points[:3, 3]).max() < 1.0  # border ends stay near
+    for k in range(3):  # ends on the border stay on it
+        end = out[k, 3]
+        assert min(end[0], end[1], 40.0 - end[0], 40.0 - end[1]) < 1e-9
+    assert (out >= 0).all() and (out <= 40.0).all()
+
+
+def test_crossing_curves_are_left_as_given_with_a_warning(shapes):
+    pixels = filtered_raster(shapes, 56, 56, "box")
+    x = _pieces([("a", [(1, [(5.0, 5.0), (30.0, 30.0)])]), ("b", [(1, [(5.0, 30.0), (30.0, 5.0)])])],
+                (0.0, 0.0, 40.0, 40.0))
+    assert crossings(x.control_points) == [(0, 1)]
+    refined = refine_curves(pixels, x, parse("box"))
+    assert refined.warning is not None and "cross" in refined.warning and "'a'" in refined.warning
+    np.testing.assert_array_equal(refined.curves.control_points, x.control_points)
+
+
+def test_shared_endpoints_are_no_crossing(shapes):
+    assert crossings(shapes.curves.control_points) == []
+
+
+def test_curves_outside_the_image_are_refused(shapes):
+    pixels = filtered_raster(shapes, 56, 56, "box")
+    out = _pieces([("far", [(1, [(5.0, 5.0), (45.0, 20.0)])])], (0.0, 0.0, 40.0, 40.0))
+    with pytest.raises(InputError, match="'far' reaches outside the image"):
+        refine_curves(pixels, out, parse("box"))
+
+
+def test_curves_over_another_domain_are_refined_in_its_units(shapes):
+    """Curves over a domain twice the image's size are scaled onto it and back."""
+    pixels = filtered_raster(shapes, 56, 56, "box")
+    true = shapes.curves
+    big = replace(true, domain=(0.0, 0.0, 112.0, 112.0), control_points=(true.control_points + OFFSET) * 2.0)
+    refined = refine_curves(pixels, big, parse("box"))
+    assert refined.curves.domain == big.domain
+    back = replace(refined.curves, domain=true.domain, control_points=refined.curves.control_points / 2.0)
+    assert compare(true, back)["mean_px"] < 0.02
