@@ -76,26 +76,15 @@ def _peak_mb(device) -> float | None:
     return torch.cuda.max_memory_allocated(device) / 2**20 if device.type == "cuda" else None
 
 
-def _timed(fn, device, repeat: int = 1) -> float:
-    """Best seconds of ``fn()`` over ``repeat`` runs after a warm-up run, the device synchronised around each."""
-    fn()
-    best = float("inf")
-    for _ in range(repeat):
-        _sync(device)
-        clock = time.perf_counter()
-        fn()
-        _sync(device)
-        best = min(best, time.perf_counter() - clock)
-    return best
-
-
 def decode_ms_per_mp(model, side: int, pixel_filter: str, device, on_device: bool) -> float:
     """Milliseconds per megapixel of a ``side``² render of the whole domain of ``model`` (on ``device``) with
     ``pixel_filter`` (end to end through ``dfc.render.render_region`` in bands of rows, or, ``on_device``, the
     field at the pixel centres evaluated on the device in blocks and kept there)."""
     import torch
 
+    from ...geometry.pixels import EdgeMask
     from ...render import MAX_POINTS, render_region
+    from ..timing import best_seconds
 
     band = max(1, MAX_POINTS // side)
     if on_device:
@@ -109,11 +98,12 @@ def decode_ms_per_mp(model, side: int, pixel_filter: str, device, on_device: boo
                     xy = torch.stack(torch.meshgrid(ys, x0 + u * (x1 - x0), indexing="ij")[::-1], -1).reshape(-1, 2)
                     model(xy)
     else:
-        def run():
+        def run():  # one edge mask per render, shared by its bands, as dfc decode does
+            mixed = EdgeMask(model.field.mesh, side, side) if pixel_filter != "point" else None
             for a in range(0, side, band):
-                render_region(model, side, side, rows=(a, min(side, a + band)), cols=(0, side),
+                render_region(model, side, side, rows=(a, min(side, a + band)), cols=(0, side), mixed=mixed,
                               pixel_filter=pixel_filter)
-    return 1e3 * _timed(run, device) / (side * side / 1e6)
+    return 1e3 * best_seconds(run, 1, device) / (side * side / 1e6)
 
 
 def fit_samples_per_s(image, mesh, device, steps: int, batch_size: int) -> float:
