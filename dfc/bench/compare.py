@@ -99,6 +99,8 @@ class BenchSettings:
     match_time : neural baselines train at least as long as dfc's encode took
     pixel_grid : the 1× image renders average a pixel_grid × pixel_grid stratified grid of points per pixel
     keep_going : a method that cannot meet the budget is recorded under ``failed`` instead of ending the run
+    default_encode : dfc is encoded as ``dfc encode`` does by default (its own steps and batch size;
+        ``steps`` and ``batch_size`` then apply to the neural baselines only)
     """
 
     steps: int = IMAGE_STEPS
@@ -117,6 +119,7 @@ class BenchSettings:
     match_time: bool = True
     pixel_grid: int = 4
     keep_going: bool = False
+    default_encode: bool = False
 
     def check(self, budgeted: bool = False) -> None:
         """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
@@ -186,22 +189,26 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     from ..codec import EncodeSettings, encode_image, loads
     from ..io.image import Image
 
+    from ..codec import default_steps
+
     h, w = pixels.shape[:2]
+    default = settings.default_encode
     enc = EncodeSettings(max_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
-                         steps=settings.steps, batch_size=settings.batch_size, seed=settings.seed,
-                         device=settings.device)
+                         steps=None if default else settings.steps, batch_size=None if default else settings.batch_size,
+                         seed=settings.seed, device=settings.device)
     image = Image(pixels, list(channels), hdr=is_hdr(pixels))
-    every = max(1, settings.steps // 10)
+    steps = default_steps("image") if default else settings.steps
+    every = max(1, steps // 10)
 
     def callback(step, loss, batch_psnr):
-        if (step + 1) % every == 0 or step + 1 == settings.steps:
-            progress(f"dfc: step {step + 1}/{settings.steps}, batch PSNR {batch_psnr:.2f} dB")
+        if (step + 1) % every == 0 or step + 1 == steps:
+            progress(f"dfc: step {step + 1}/{steps}, batch PSNR {batch_psnr:.2f} dB")
 
     blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
     model = loads(blob, device=settings.device)
     details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,
                           "dim": enc.dim, "feature_bits": report.feature_bits, "mesh_bits": enc.mesh_bits,
-                          "steps": enc.steps},
+                          "steps": steps},
                "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds}
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}
 
@@ -400,7 +407,8 @@ class BenchResult:
 def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settings: BenchSettings,
               probe_kinds: list[str] | None = None, reference=None, truth: np.ndarray | None = None,
               truth_label: str | None = None, truth_psnr: float | None = None, name: str = "",
-              progress: Callable[[str], None] | None = None, cache: dict | None = None) -> BenchResult:
+              progress: Callable[[str], None] | None = None, cache: dict | None = None,
+              other_truths: dict[str, np.ndarray] | None = None) -> BenchResult:
     """Fit every method to ``pixels`` at equal bytes and measure it at 1× and at every probe and zoom.
 
     Parameters
@@ -416,6 +424,8 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
         truth_psnr : its own estimated PSNR against the noise-free truth when it is a Monte Carlo render
     name : label of the input, stored in the results
     cache : reference window renders by window, shared by the runs of an RD sweep
+    other_truths : {label: (H, W, C) raster}: further 1× truths each method is also measured against (a noisy
+        input's clean truth), recorded as ``image_psnr_vs[label]``
 
     Returns
     -------
@@ -449,9 +459,14 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     models, record, failed, blob, budget = _fit_all(pixels, curves, channels, methods, settings, scale, progress)
     for m, model in models.items():
         progress(f"{m}: 1x image")
-        scores = [image_scores(truth, image_render(view, domain, W, H, settings.pixel_grid, settings.device), mixed,
-                               scale) for view in _views(m, model).values()]
-        record[m]["image_psnr"] = max(scores, key=lambda s: s["all"])
+        renders = [image_render(view, domain, W, H, settings.pixel_grid, settings.device)
+                   for view in _views(m, model).values()]
+        scores = [image_scores(truth, r, mixed, scale) for r in renders]
+        best = int(np.argmax([s["all"] for s in scores]))
+        record[m]["image_psnr"] = scores[best]
+        if other_truths:
+            record[m]["image_psnr_vs"] = {label: image_scores(np.asarray(t, dtype=np.float32), renders[best], mixed,
+                                                              scale) for label, t in other_truths.items()}
     windows = [[zoom_window(domain, p, z) for z in settings.zooms] for p in probes]
     if getattr(reference, "square_pixels", False):
         windows = [[square_pixels(w, settings.render) for w in row] for row in windows]

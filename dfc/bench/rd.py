@@ -97,7 +97,8 @@ def rd_record(runs: list[BenchResult], budgets: list[int]) -> dict:
             by_kind = {k: {z: _mean([x for x, kk in zip(v, kinds) if kk == k]) for z, v in r["psnr"].items()}
                        for k in dict.fromkeys(kinds)}
             points.append({"budget": budget, "bytes": r["bytes"], "image_psnr": r["image_psnr"], "psnr": by_zoom,
-                           "psnr_by_kind": by_kind, "config": r["config"], "configuration": config_label(m, r)})
+                           "psnr_by_kind": by_kind, "config": r["config"], "configuration": config_label(m, r),
+                           **({"image_psnr_vs": r["image_psnr_vs"]} if "image_psnr_vs" in r else {})})
         curves[m] = points
     keep = ("input", "reference", "zoom_truth", "quality_scale", "data_range", "tonemap", "hdr", "image", "zooms",
             "probes", "probe_kinds", "windows")

@@ -66,12 +66,12 @@ def markdown_table(title: str, notes: str, header: list[str], rows: list[list[st
     return "\n".join(lines) + "\n"
 
 
-def _finite(obj):
+def finite(obj):
     """``obj`` with every non-finite float (an infinite PSNR of identical rasters) replaced by None."""
     if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
+        return {k: finite(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
+        return [finite(v) for v in obj]
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
@@ -89,7 +89,7 @@ def write_report(directory: str | Path, record: dict, markdown: str, sheet: byte
 
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
-    files = {"results.json": (json.dumps(_finite(record), indent=2, allow_nan=False) + "\n").encode(),
+    files = {"results.json": (json.dumps(finite(record), indent=2, allow_nan=False) + "\n").encode(),
              "results.md": markdown.encode()}
     if sheet is not None:
         files["contact.png"] = sheet

@@ -63,7 +63,18 @@ def _budgets(ctx, param, value):
 @click.option("--solve", "solve_path", type=click.Path(exists=True, dir_okay=False),
               help="Physics-informed solve of this diffusion-curve scene (XML, or JSON with side values) by dfc "
               "and the TanH field, SIREN and MLP baselines, against the finite-difference reference.")
-@click.option("--list-scenes", is_flag=True, help="List the analytic scenes and exit.")
+@click.option("--corpus", is_flag=True, help="Run the real-content corpus (dfc.bench.corpus): RD curves at 0.25, "
+              "0.5, 1 and 2 bits per pixel of every case, dfc encoded as dfc encode does by default, against JPEG XL, "
+              "AVIF, WebP (SDR only) and JPEG 2000, and print the BD-rate table (no neural baselines unless "
+              "--methods names them).")
+@click.option("--corpus-cases", metavar="NAME,...", help="--corpus: the cases to run  [default: all; see "
+              "--list-scenes].")
+@click.option("--corpus-data", type=click.Path(file_okay=False), metavar="DIR",
+              help="--corpus: the third-party data directory (exr/, diffusion-curves/); cases needing it are skipped "
+                   "when it is absent  [default: shared/data beside the repository].")
+@click.option("--corpus-bpp", metavar="BPP,...", help="--corpus: budgets in bits per input pixel  "
+              "[default: 0.25,0.5,1,2].")
+@click.option("--list-scenes", is_flag=True, help="List the analytic scenes (and the corpus cases) and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
               help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
               "tips, and in smooth regions, found from the curves).")
@@ -98,9 +109,9 @@ def _budgets(ctx, param, value):
               "1024 interior and 1024 boundary points].")
 @click.option("--size", type=click.IntRange(min=8), help="Scenes: longer side of the raster fitted  "
               "[default: the domain's longer side in its units; a Mitsuba scene's film]; --solve: of the reference "
-              "grid [default: 256].")
-@click.option("--render", type=click.IntRange(min=8), default=256, show_default=True,
-              help="Window resolution (longer side, pixels).")
+              "grid [default: 256]; --corpus: of every case's input [default: 256].")
+@click.option("--render", type=click.IntRange(min=8), help="Window resolution (longer side, pixels)  "
+              "[default: 256; --corpus: 128].")
 @click.option("--spp", type=click.IntRange(min=1), default=4, show_default=True, help="Points averaged per pixel.")
 @click.option("--max-triangles", type=click.IntRange(min=2), help="Cap on dfc's mesh triangle count.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Seeds every fit and the sampling.")
@@ -109,9 +120,10 @@ def _budgets(ctx, param, value):
 @threads_option
 @json_option
 @quiet_option
-def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, list_scenes, probes, output, zooms,
-            methods, target_bytes, rd, budgets, steps, sweep, sweep_steps, match_time, pixel_grid, batch_size, size,
-            render, spp, max_triangles, seed, device, fit_curves_to_image, json_path, quiet):
+def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
+            corpus_data, corpus_bpp, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
+            fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
     byte count (tuned neural baselines, a lossless raster, classical codecs at the highest quality that fits),
     measure each at 1x on the whole image and in a window around each probe at each zoom, and write the PSNR tables
@@ -124,6 +136,7 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
     dfc bench --scene SCENE.xml [RENDER.exr] [--curves CURVES] [--scene-spp N] -o DIR
     dfc bench --scene NAME --rd [--budgets 2048,4096,...] -o DIR
     dfc bench --solve SCENE -o DIR
+    dfc bench --corpus [--corpus-cases NAME,...] [--json PATH] [-o DIR]
     dfc bench --list-scenes
 
     Probes default to points on edges, at junctions and stroke tips, and in smooth regions, found from the curves.
@@ -131,15 +144,32 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
     each window (a film scaled up with a crop window); a user image alone only at zoom 1 (against itself, rendered
     at its own resolution) — larger zooms are rendered but have no reference. --solve trains every method
     on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
-    --zoom do not apply). --json also writes results.json's record to a file (- for standard output, the table then
-    going to standard error).
+    --zoom do not apply). --corpus runs every case of the real-content corpus (or --corpus-cases) and prints the
+    BD-rate table of dfc against each codec, the 1x PSNR per budget and the zoom margins (the tables also to
+    DIR/results.md with -o). --json also writes results.json's record to a file (- for standard output, the table
+    then going to standard error).
     """
     from ..bench.scenes import SCENES, SUMMARIES
 
     if list_scenes:
+        from ..bench.corpus import CASES
+
         for name in SCENES:
             click.echo(f"{name:10s} {SUMMARIES[name]}")
+        for name, case in CASES.items():
+            click.echo(f"corpus case {name}: {case.summary}")
         return
+    if corpus:
+        if any(v is not None for v in (input_path, curves_path, scene, solve_path, target_bytes, budgets)) or rd \
+                or probes or fit_curves_to_image:
+            raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
+                                   "--budgets and --fit-curves-to-image")
+        _corpus(corpus_cases, corpus_data, corpus_bpp, output, zooms, methods, steps, batch_size, size, render, spp,
+                pixel_grid, max_triangles, seed, device, json_path, quiet)
+        return
+    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)):
+        raise click.UsageError("--corpus-cases, --corpus-data and --corpus-bpp apply to --corpus")
+    render = render or 256
     from ..bench.rendered import is_scene_file
 
     mitsuba = scene is not None and is_scene_file(scene)
@@ -219,23 +249,10 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
 
 
 def _auto_curves(pixels, domain, progress):
-    """``--curves auto``: the curves ``image_curves`` finds at its defaults in ``pixels`` (H, W, C), scaled from
-    pixels onto ``domain`` (x0, y0, x1, y1)."""
-    from ..errors import ExtraError
-    from ..geometry.curves import Curves
+    """``--curves auto``: ``dfc.bench.corpus.found_curves``."""
+    from ..bench.corpus import found_curves
 
-    progress("finding the curves in the raster (dfc curves' defaults)")
-    try:
-        from ..geometry.sources.raster import image_curves
-
-        found = image_curves(pixels)
-    except ImportError:
-        raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
-    h, w = pixels.shape[:2]
-    x0, y0, x1, y1 = domain
-    cp = found.control_points * [(x1 - x0) / w, (y1 - y0) / h] + [x0, y0]
-    return Curves(tuple(map(float, domain)), cp, found.degree, found.curve, found.t_range, found.names, found.sides,
-                  source="auto")
+    return found_curves(pixels, domain, progress)
 
 
 def _mitsuba_inputs(scene, input_path, curves_path, settings, probes, spp, pixel_filter, sensor, quiet,
@@ -288,3 +305,53 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     for written in write_outputs(results, output):
         progress(f"wrote {written}")
     _finish(markdown_table(results), output, json_path)
+
+
+def _corpus(cases, data, bpp, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
+            seed, device, json_path, quiet) -> None:
+    """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
+    are given (they then apply to it too)."""
+    from ..bench.compare import ZOOMS, BenchSettings
+    from ..bench.corpus import (CORPUS_BPP, CORPUS_METHODS, corpus_document, corpus_markdown, corpus_record,
+                                default_shared, run_corpus, select_cases)
+
+    try:
+        bpp_values = CORPUS_BPP if bpp is None else sorted({float(v) for v in bpp.split(",") if v.strip()})
+    except ValueError:
+        raise click.BadParameter(f"expected comma-separated bits per pixel, got {bpp!r}",
+                                 param_hint="'--corpus-bpp'") from None
+    if not bpp_values or not all(0 < b < 64 for b in bpp_values):
+        raise click.BadParameter("bits per pixel must be in (0, 64)", param_hint="'--corpus-bpp'")
+    names = None if cases is None else [n.strip() for n in cases.split(",") if n.strip()]
+    shared = Path(data) if data else default_shared()
+    selected, skipped = select_cases(names, shared)
+    settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14, render=render or 128,
+                             spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, CORPUS_METHODS),
+                             max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=False,
+                             match_time=False, pixel_grid=pixel_grid, keep_going=True)
+    settings.check(budgeted=True)
+    own = steps is not None or batch_size is not None
+
+    def progress(message: str) -> None:
+        if not quiet:
+            click.echo(f"bench: {message}", err=True)
+
+    for name, why in skipped.items():
+        progress(f"skipping corpus case {name}: {why}")
+    if not selected:
+        raise click.UsageError("no corpus case can run here: " + "; ".join(f"{n}: {w}" for n, w in skipped.items()))
+    results = run_corpus(selected, settings, size=size or 256, bpp=bpp_values, shared=shared, progress=progress,
+                         default_encode=not own)
+    record = corpus_record(results, skipped, bpp_values)
+    text = corpus_markdown(record)
+    doc = corpus_document(record, text)
+    if output:
+        from ..io.atomic import write_bytes_atomic
+
+        Path(output).mkdir(parents=True, exist_ok=True)
+        write_bytes_atomic(Path(output) / "results.json", (json.dumps(doc, indent=2) + "\n").encode())
+        write_bytes_atomic(Path(output) / "results.md", text.encode())
+        progress(f"wrote {Path(output) / 'results.json'} and results.md")
+    click.echo(text, nl=False, err=stdout_taken(json_path))
+    if json_path:
+        write_json(json_path, doc)
