@@ -27,7 +27,7 @@ from ..errors import InputError
 from .codecs import CODECS, SDR_ONLY
 
 __all__ = ["CASES", "CORPUS_BPP", "CORPUS_METHODS", "NOISE_SIGMA", "CorpusCase", "bd_rate", "corpus_document", "corpus_markdown",
-           "corpus_record", "corpus_series", "default_shared", "found_curves", "run_corpus", "select_cases"]
+           "corpus_record", "corpus_series", "default_shared", "found_curves", "run_case", "run_corpus", "select_cases"]
 
 CORPUS_BPP = (0.25, 0.5, 1.0, 2.0)
 """Budgets in bits per input pixel."""
@@ -307,34 +307,61 @@ def found_curves(pixels: np.ndarray, domain, progress: Callable[[str], None] | N
 
 # ----------------------------------------------------------------------------------------------- run
 def run_corpus(cases: list[CorpusCase], settings, *, size: int = 256, bpp=CORPUS_BPP, shared: Path | None = None,
-               progress: Callable[[str], None] | None = None, default_encode: bool = True) -> dict:
-    """``run_rd`` on every case at ``bpp`` bits per pixel of its input (settings: ``BenchSettings``; its methods
+               progress: Callable[[str], None] | None = None, default_encode: bool = True, jobs: int = 1) -> dict:
+    """``run_case`` on every case, in ``jobs`` worker processes (each on one torch thread) when more than one
+    (``progress`` must then be picklable: a module-level function). Returns {case name: record} in the cases'
+    order; a case that fails to build or run ends the run (its error raised)."""
+    progress = progress or _silent
+    if jobs <= 1 or len(cases) <= 1:
+        return {c.name: run_case(c, settings, size=size, bpp=bpp, shared=shared, progress=progress,
+                                 default_encode=default_encode, number=f"{k + 1}/{len(cases)}")
+                for k, c in enumerate(cases)}
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(_worker, c.name, settings, size, tuple(bpp), shared, progress, default_encode,
+                               f"{k + 1}/{len(cases)}") for k, c in enumerate(cases)]
+        return {c.name: f.result() for c, f in zip(cases, futures)}
+
+
+def _silent(message: str) -> None:
+    return None
+
+
+def _worker(name, settings, size, bpp, shared, progress, default_encode, number) -> dict:
+    import torch
+
+    torch.set_num_threads(1)
+    return run_case(CASES[name], settings, size=size, bpp=bpp, shared=shared, progress=progress,
+                    default_encode=default_encode, number=number)
+
+
+def run_case(case: CorpusCase, settings, *, size: int = 256, bpp=CORPUS_BPP, shared: Path | None = None,
+             progress: Callable[[str], None] | None = None, default_encode: bool = True, number: str = "") -> dict:
+    """``run_rd`` on ``case`` at ``bpp`` bits per pixel of its input (settings: ``BenchSettings``; its methods
     default to ``CORPUS_METHODS``, WebP left out for HDR input; zooms above 1 only with a reference; dfc as a
-    default encode unless ``default_encode`` is False: then with ``settings.steps`` and ``batch_size``). Returns {case name: (case, the RD record without its per-budget ``runs``, the zoom margins
-    ``zoom_margins``)}; a case that fails to build or run ends the run (its error raised)."""
+    default encode unless ``default_encode`` is False: then with ``settings.steps`` and ``batch_size``). Returns the
+    RD record without its per-budget ``runs``, with ``bpp``, ``case`` and the zoom margins ``zoom_margins``."""
     from ..metrics import is_hdr
     from .rd import run_rd
 
-    progress = progress or (lambda message: None)
-    out = {}
-    for k, case in enumerate(cases):
-        progress(f"case {k + 1}/{len(cases)}: {case.name} ({case.summary})")
-        inputs = _inputs(case, size, settings, shared, progress)
-        h, w = inputs["pixels"].shape[:2]
-        methods = tuple(m for m in (settings.methods or CORPUS_METHODS)
-                        if not (is_hdr(inputs["pixels"]) and m in SDR_ONLY))
-        zooms = settings.zooms if case.zoom_truth else (1,)
-        run_settings = replace(settings, methods=methods, zooms=zooms, pixel_grid=case.pixel_grid,
-                               default_encode=default_encode)
-        budgets = sorted({max(1, round(b * w * h / 8)) for b in bpp})
-        result = run_rd(inputs, budgets, run_settings, lambda m, n=case.name: progress(f"{n}: {m}"))
-        record = {k2: v for k2, v in result.results.items() if k2 != "runs"}
-        record["bpp"] = [round(8 * b / (w * h), 4) for b in budgets]
-        record["case"] = {"name": case.name, "summary": case.summary, "auto": case.auto,
-                          "zoom_truth": case.zoom_truth, "smooth": case.smooth}
-        record["zoom_margins"] = _zoom_margins([r.results for r in result.runs])
-        out[case.name] = record
-    return out
+    progress = progress or _silent
+    progress(f"case {number + ': ' if number else ''}{case.name} ({case.summary})")
+    inputs = _inputs(case, size, settings, shared, lambda m: progress(f"{case.name}: {m}"))
+    h, w = inputs["pixels"].shape[:2]
+    methods = tuple(m for m in (settings.methods or CORPUS_METHODS) if not (is_hdr(inputs["pixels"]) and m in SDR_ONLY))
+    zooms = settings.zooms if case.zoom_truth else (1,)
+    run_settings = replace(settings, methods=methods, zooms=zooms, pixel_grid=case.pixel_grid,
+                           default_encode=default_encode)
+    budgets = sorted({max(1, round(b * w * h / 8)) for b in bpp})
+    result = run_rd(inputs, budgets, run_settings, lambda m: progress(f"{case.name}: {m}"))
+    record = {k: v for k, v in result.results.items() if k != "runs"}
+    record["bpp"] = [round(8 * b / (w * h), 4) for b in budgets]
+    record["case"] = {"name": case.name, "summary": case.summary, "auto": case.auto, "zoom_truth": case.zoom_truth,
+                      "smooth": case.smooth}
+    record["zoom_margins"] = _zoom_margins([r.results for r in result.runs])
+    return record
 
 
 def _zoom_margins(runs: list[dict]) -> dict:

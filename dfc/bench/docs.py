@@ -20,6 +20,7 @@ from .results import validate
 __all__ = ["PAGES", "check", "figures", "generate", "load_results", "results_markdown"]
 
 PAGES = {
+    "corpus": "Real content at 0.25–2 bits per pixel: the `dfc bench --corpus` baseline",
     "images": "Images at equal bytes: dfc against codecs and tuned neural baselines",
     "scenes": "Rendered 3D scenes",
     "curves": "Curves found in the image",

@@ -74,6 +74,8 @@ def _budgets(ctx, param, value):
                    "when it is absent  [default: shared/data beside the repository].")
 @click.option("--corpus-bpp", metavar="BPP,...", help="--corpus: budgets in bits per input pixel  "
               "[default: 0.25,0.5,1,2].")
+@click.option("--corpus-jobs", type=click.IntRange(min=1), default=1, show_default=True,
+              help="--corpus: cases run at once, each in a process of its own on one thread.")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes (and the corpus cases) and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
               help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
@@ -121,7 +123,7 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            corpus_data, corpus_bpp, corpus_jobs, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -164,11 +166,11 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
                 or probes or fit_curves_to_image:
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
-        _corpus(corpus_cases, corpus_data, corpus_bpp, output, zooms, methods, steps, batch_size, size, render, spp,
+        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, output, zooms, methods, steps, batch_size, size, render, spp,
                 pixel_grid, max_triangles, seed, device, json_path, quiet)
         return
-    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)):
-        raise click.UsageError("--corpus-cases, --corpus-data and --corpus-bpp apply to --corpus")
+    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1:
+        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp and --corpus-jobs apply to --corpus")
     render = render or 256
     from ..bench.rendered import is_scene_file
 
@@ -307,7 +309,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     _finish(markdown_table(results), output, json_path)
 
 
-def _corpus(cases, data, bpp, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
+def _corpus(cases, data, bpp, jobs, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
             seed, device, json_path, quiet) -> None:
     """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
     are given (they then apply to it too)."""
@@ -332,16 +334,13 @@ def _corpus(cases, data, bpp, output, zooms, methods, steps, batch_size, size, r
     settings.check(budgeted=True)
     own = steps is not None or batch_size is not None
 
-    def progress(message: str) -> None:
-        if not quiet:
-            click.echo(f"bench: {message}", err=True)
-
+    progress = None if quiet else _progress
     for name, why in skipped.items():
-        progress(f"skipping corpus case {name}: {why}")
+        _progress(f"skipping corpus case {name}: {why}")
     if not selected:
         raise click.UsageError("no corpus case can run here: " + "; ".join(f"{n}: {w}" for n, w in skipped.items()))
     results = run_corpus(selected, settings, size=size or 256, bpp=bpp_values, shared=shared, progress=progress,
-                         default_encode=not own)
+                         default_encode=not own, jobs=jobs)
     record = corpus_record(results, skipped, bpp_values)
     text = corpus_markdown(record)
     doc = corpus_document(record, text)
@@ -351,7 +350,13 @@ def _corpus(cases, data, bpp, output, zooms, methods, steps, batch_size, size, r
         Path(output).mkdir(parents=True, exist_ok=True)
         write_bytes_atomic(Path(output) / "results.json", (json.dumps(doc, indent=2) + "\n").encode())
         write_bytes_atomic(Path(output) / "results.md", text.encode())
-        progress(f"wrote {Path(output) / 'results.json'} and results.md")
+        if not quiet:
+            _progress(f"wrote {Path(output) / 'results.json'} and results.md")
     click.echo(text, nl=False, err=stdout_taken(json_path))
     if json_path:
         write_json(json_path, doc)
+
+
+def _progress(message: str) -> None:
+    """``--corpus``'s progress line on standard error (a module-level function: worker processes receive it)."""
+    click.echo(f"bench: {message}", err=True)
