@@ -145,3 +145,16 @@ def test_bad_corpus_options_are_one_error_line(tmp_path, capsys, args, match):
 def test_corpus_options_need_corpus(tmp_path, capsys):
     code, _, err = run(["bench", "--scene", "shapes", "--corpus-cases", "point-shapes", "-o", tmp_path], capsys)
     assert_one_line_error(code, err, "apply to --corpus")
+
+
+def test_cases_in_worker_processes_give_what_one_process_gives(tmp_path):
+    from dfc.bench.compare import BenchSettings
+    from dfc.bench.corpus import run_corpus
+
+    cases, _ = select_cases(["point-shapes", "mitsuba-shapes-hdr"], tmp_path)
+    cases = cases[:1] * 2  # the same case twice: no Mitsuba render needed
+    settings = BenchSettings(methods=("jpegxl",), zooms=(1,), render=16, spp=1, keep_going=True)
+    one = run_corpus(cases[:1], settings, size=32, bpp=(8.0,), progress=None)
+    two = run_corpus(cases, settings, size=32, bpp=(8.0,), progress=None, jobs=2)
+    assert list(two) == ["point-shapes"]
+    assert two["point-shapes"]["curves"] == one["point-shapes"]["curves"]
