@@ -12,6 +12,7 @@ from PIL import Image as PILImage
 
 from dfc.bench import codecs
 from dfc.bench.report import LABEL_WIDTH, TILE
+from dfc.bench.corpus import CASES
 from dfc.bench.scenes import SCENES
 from dfc.cli import cli
 from dfc.errors import InputError
@@ -72,7 +73,9 @@ def test_window_points_are_pixel_centres_at_one_spp():
 def test_list_scenes_names_every_scene():
     result = CliRunner().invoke(cli, ["bench", "--list-scenes"])
     assert result.exit_code == 0
-    assert {line.split()[0] for line in result.output.splitlines()} == set(SCENES)
+    lines = result.output.splitlines()
+    assert {line.split()[0] for line in lines if not line.startswith("corpus case ")} == set(SCENES)
+    assert [line.split()[2].rstrip(":") for line in lines if line.startswith("corpus case ")] == list(CASES)
 
 
 def test_bench_on_a_tiny_scene_writes_the_results(tmp_path):
