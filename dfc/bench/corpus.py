@@ -446,6 +446,14 @@ def corpus_record(results: dict, skipped: dict[str, str], bpp=CORPUS_BPP) -> dic
     return {"corpus": True, "cases": cases, "skipped": skipped, "bpp": [float(b) for b in bpp]}
 
 
+def _smallest(point: dict) -> int | None:
+    """dfc's smallest file (bytes) at a budget it could not meet, from its failure message, else None."""
+    import re
+
+    found = re.search(r"smallest file tried takes (\d+) bytes", point.get("failed", ""))
+    return int(found.group(1)) if found else None
+
+
 def corpus_markdown(record: dict) -> str:
     """The tables of a corpus run: BD-rates and acceptance per case, 1× PSNR per budget, zoom margins; the cases
     skipped."""
@@ -453,18 +461,25 @@ def corpus_markdown(record: dict) -> str:
     from .report import markdown_table as table
 
     cases = record["cases"]
-    header = ["case", *(f"vs {LABELS[m]}" for m in CODECS), "vs better of JXL/AVIF", "1× ≥ best codec, all budgets",
+    header = ["case", "dfc points", *(f"vs {LABELS[m]}" for m in CODECS), "vs better of JXL/AVIF",
+              "1× ≥ best codec, all budgets",
               "zoom: worst probe − best codec", "zoom: edges median − best codec"]
     rows = []
     for name, c in cases.items():
         ch = c["checks"]
-        rows.append([name, *(_fmt(c["bd_rate"].get(m), "+.1f", " %") if m in c["bd_rate"] else "n/a" for m in CODECS),
+        pts = c["curves"].get("dfc", [])
+        smallest = [_smallest(p) for p in pts if "failed" in p]
+        points = f"{sum('bytes' in p for p in pts)}/{len(pts)}" + (
+            f" (smallest file {max(smallest)} B)" if smallest and all(smallest) else "")
+        rows.append([name, points,
+                     *(_fmt(c["bd_rate"].get(m), "+.1f", " %") if m in c["bd_rate"] else "n/a" for m in CODECS),
                      _fmt(ch["bd_better_jxl_avif"], "+.1f", " %") + (" ✓" if ch["bd_met"] else " ✗"),
                      "✓" if ch["above_1x"] else "✗ (" + ", ".join(
                          "no dfc file" if a is None or a is False else f"{a:+.1f} dB" for a in ch["margins_1x"]) + ")",
                      "1× only (no reference)" if not c["case"]["zoom_truth"] else _fmt(ch["zoom_min"], "+.1f", " dB"),
                      "1× only" if not c["case"]["zoom_truth"] else _fmt(ch["zoom_edge_median_min"], "+.1f", " dB")])
-    notes = ("BD-rate (%) of dfc against each codec: Bjøntegaard delta rate, PCHIP of log bytes against 1× PSNR (all "
+    notes = ("dfc points: the budgets at which dfc made a file (its smallest file when it could not: a BD-rate "
+             "needs two points). BD-rate (%) of dfc against each codec: Bjøntegaard delta rate, PCHIP of log bytes against 1× PSNR (all "
              "pixels) over the PSNR range both curves cover; negative: dfc needs fewer bytes. The acceptance of issue "
              f"29: BD-rate against the better of JPEG XL and AVIF ≤ {BD_TARGET:g} % (✓/✗), dfc's 1× PSNR at or above "
              "the best codec at every budget (margins at each budget when not), no zoom probe below the best codec, "
@@ -482,7 +497,8 @@ def corpus_markdown(record: dict) -> str:
     rows = []
     for name, c in cases.items():
         for m, pts in c["curves"].items():
-            cells = ["–" if "bytes" not in p else f"{p['image_psnr']['all']:.2f} ({p['bytes']})" for p in pts]
+            cells = [f"{p['image_psnr']['all']:.2f} ({p['bytes']})" if "bytes" in p
+                     else f"– (smallest {_smallest(p)} B)" if _smallest(p) else "–" for p in pts]
             rows.append([name, LABELS[m], *cells])
             if any("image_psnr_vs" in p for p in pts):
                 rows.append([name, f"{LABELS[m]} vs clean", *(
