@@ -766,7 +766,8 @@ def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False,
 
     ``mesh`` should be ``roundtrip_mesh(m, bits)``: the file then reproduces exactly the geometry and order
     the features were fitted on. ``coding`` "derived" (``MESH_CODINGS``) first tries the derived encoding on the
-    finest grid that holds every vertex, taking it when it is smaller than Draco's and decodes to ``mesh``.
+    coarsest grid (2 bits or more) that holds every vertex, taking it when it is no larger than Draco's and decodes to
+    ``mesh``.
     Otherwise tries, smallest first, the Draco precisions whose grid holds every vertex
     exactly (grids nest: 10 bits lie on the 20-bit grid) and takes the first under which ``mesh`` decodes to
     itself; any other valid mesh is stored with the lossless raw encoding. Raises ``MeshError`` when
@@ -777,9 +778,9 @@ def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False,
         raise ValueError(f"mesh coding must be one of {MESH_CODINGS}, got {coding!r}")
     grids = [b for b in range(1, MAX_MESH_BITS + 1) if _on_grid(mesh, b)]
     derived = None
-    if coding == "derived" and grids and grids[-1] >= 2:
-        # the finest grid: a coarser one that holds every vertex would need the same bits per free vertex anyway
-        res = _try(mesh, grids[-1], level, validate=not validated, derived=True)
+    coarsest = next((b for b in grids if b >= 2), None)
+    if coding == "derived" and coarsest is not None:
+        res = _try(mesh, coarsest, level, validate=not validated, derived=True)
         # anything else would decode to a different mesh: then Draco (or raw) below
         derived = res[0] if res is not None and _same(res[1], mesh) else None
     for step in grids + [None]:
