@@ -781,7 +781,10 @@ def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False,
     coarsest = next((b for b in grids if b >= 2), None)
     if coding == "derived" and coarsest is not None:
         res = _try(mesh, coarsest, level, validate=not validated, derived=True)
-        # anything else would decode to a different mesh: then Draco (or raw) below
+        # The derived encoding is kept only when decoding it gives back ``mesh`` bit for bit. It cannot when the
+        # mesh is off the grid, when a vertex lies on (or within the CDT's tolerance of) a constraint edge so the
+        # triangulation would split it, or when no set of extra edges makes ``mesh`` the unique CDT within
+        # _DERIVED_ROUNDS tries: then Draco (or raw) below, which store the connectivity itself.
         derived = res[0] if res is not None and _same(res[1], mesh) else None
     for step in grids + [None]:
         res = _try(mesh, step, level, validate=not validated)
