@@ -19,6 +19,8 @@ bit).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import nn
@@ -28,6 +30,10 @@ DEFAULT_FEATURE_BITS = 10
 """Bits per stored feature value unless told otherwise (``--feature-bits``; 1 … ``MAX_FEATURE_BITS``). Why 10:
 CHANGELOG.md, "10-bit features"; the measurements: docs/results.md, "10-bit features"."""
 MIN_WEIGHT_BITS, MAX_WEIGHT_BITS = 2, 16
+OUTLIER_QUANTILE = 0.01
+"""``clip_feature_outliers`` keeps each channel within its ``OUTLIER_QUANTILE`` … ``1 - OUTLIER_QUANTILE`` quantiles,
+widened by ``OUTLIER_MARGIN`` of their distance on each side."""
+OUTLIER_MARGIN = 0.25
 
 
 def feature_ranges(F: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
@@ -71,6 +77,23 @@ def fake_quantize(F: torch.Tensor, bits: int) -> torch.Tensor:
     q = torch.clamp(torch.round((F.detach().float() - offset_t) / scale_t), 0, 2**bits - 1)
     Fq = (offset_t + q * scale_t).to(F.dtype)
     return F + (Fq - F).detach()
+
+
+def clip_feature_outliers(F: torch.Tensor) -> None:
+    """Clamp the features ``F`` (..., K) in place, per channel, to the ``OUTLIER_QUANTILE`` quantiles (order
+    statistics, no interpolation) widened by ``OUTLIER_MARGIN``. Run before quantisation-aware steps: the quantiser's
+    range is each channel's min … max, and a few features far outside the rest (rows that almost no sample reaches
+    drift under Adam) would otherwise take most of its levels, leaving the bulk of the features a handful
+    (CHANGELOG.md, "Feature outliers")."""
+    with torch.no_grad():
+        flat = F.detach().reshape(-1, F.shape[-1])
+        n = len(flat)
+        if n < 2:
+            return
+        ordered = flat.sort(dim=0).values
+        lo, hi = ordered[int(OUTLIER_QUANTILE * (n - 1))], ordered[math.ceil((1 - OUTLIER_QUANTILE) * (n - 1))]
+        width = hi - lo
+        F.copy_(torch.maximum(torch.minimum(F, hi + OUTLIER_MARGIN * width), lo - OUTLIER_MARGIN * width))
 
 
 def fake_fp16(W: torch.Tensor) -> torch.Tensor:

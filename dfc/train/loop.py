@@ -22,7 +22,7 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
-from ..field.quantize import DEFAULT_FEATURE_BITS
+from ..field.quantize import DEFAULT_FEATURE_BITS, clip_feature_outliers
 from .distributed import parallel, rank_seed, world
 
 __all__ = ["BACKWARD", "BETAS", "FORWARD", "Loss", "OPTIMISER", "SAMPLE", "Sampler", "Schedule", "train"]
@@ -47,7 +47,8 @@ class Schedule:
     steps : optimiser steps (a model with coarse-to-fine ``stages`` splits them between its stages)
     lr, final_lr : Adam's learning rate, decaying geometrically to ``final_lr`` over the run (None: constant)
     betas : Adam's betas
-    qat_steps : the last ``qat_steps`` steps run with ``model.quantization = {"feature_bits": feature_bits}``
+    qat_steps : the last ``qat_steps`` steps (before them a ``FieldModel``'s features are clipped to their bulk,
+        ``dfc.field.quantize.clip_feature_outliers``) run with ``model.quantization = {"feature_bits": feature_bits}``
         (quantised features, fp16 weights; with ``weight_bits`` also ``"weight_bits": weight_bits``, integer weight
         matrices), which stays set on return so the model evaluates as stored
     restart_stages : coarse-to-fine stages each restart the learning-rate decay and reseed the sampling
@@ -119,6 +120,8 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
         net = parallel(model)
         for _ in range(n):
             if step == qat_from:
+                if isinstance(getattr(model, "field", None), nn.Module) and hasattr(model.field, "bank"):
+                    clip_feature_outliers(model.field.bank)
                 model.quantization = schedule.quantization()
                 net = parallel(model, sync=False)
             for group in optimizer.param_groups:
