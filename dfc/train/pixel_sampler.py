@@ -80,7 +80,7 @@ class _FilteredPixels:
                 parts = [query(self.xy[s:s + QUERY_CHUNK]) for s in range(0, len(self.xy), QUERY_CHUNK)]
             self.cache = (torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
         self.sets = sets
-        self.epoch = None  # (epoch, its pixels, at, pixel_of, bounds): ``_prepare``
+        self.laid_out = None  # (epoch, its pixels, at, pixel_of, bounds): ``_prepare``
 
     def _prepare(self, order: Tensor, epoch: int) -> None:
         """Index the points of an epoch once: its pixels in ``order`` (n,) and, for the k-th point of the epoch,
@@ -93,16 +93,16 @@ class _FilteredPixels:
         at = (torch.repeat_interleave(self.start.index_select(0, order) - (ends - count), count)
               + ((epoch - 1) % self.sets) * self.total + torch.arange(self.total))
         device = self.xy.device
-        self.epoch = (epoch, order.to(device), at.to(device),
+        self.laid_out = (epoch, order.to(device), at.to(device),
                       torch.repeat_interleave(torch.arange(len(order)), count).to(device),
                       np.concatenate([[0], ends.numpy()]))
 
     def __call__(self, step: int, generator: torch.Generator):
         ats, rows, pixels, taken = [], [], [], 0
         for order, a, b, epoch in self.epochs.runs(self.batch_size, generator):
-            if self.epoch is None or self.epoch[0] != epoch:
+            if self.laid_out is None or self.laid_out[0] != epoch:
                 self._prepare(order, epoch)
-            _, pixel_order, at, pixel_of, bounds = self.epoch
+            _, pixel_order, at, pixel_of, bounds = self.laid_out
             lo, hi = int(bounds[a]), int(bounds[b])
             ats.append(at[lo:hi])
             rows.append(pixel_of[lo:hi] + (taken - a))
