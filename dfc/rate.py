@@ -56,11 +56,14 @@ triangles (CHANGELOG.md, "The decoder's share of a byte target"; docs/results.md
 def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | None = None) -> Mesh:
     """Triangulate ``curves`` with the settings' size knobs (and the refinement vertices ``extra_points`` (M, 2),
     see ``dfc.geometry.triangulate``) and return the mesh as the decoder will see it (Draco-quantised with
-    ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on."""
+    ``settings.mesh_bits``, decoder vertex order): the geometry the fit runs on. With ``settings.mesh_coding``
+    "derived" the free vertices are snapped to the coarse lattice that encoding stores them on."""
     from .io.meshcodec import roundtrip_mesh
 
+    lattice = settings.mesh_bits if settings.mesh_coding == "derived" and settings.mesh_bits >= 2 else None
     mesh = triangulate(curves, max_area=settings.max_area, edge_length=settings.edge_length,
-                       max_triangles=settings.max_triangles, extra_points=extra_points, stats=stats)
+                       max_triangles=settings.max_triangles, extra_points=extra_points, lattice_bits=lattice,
+                       stats=stats)
     return roundtrip_mesh(mesh, settings.mesh_bits)
 
 

@@ -24,10 +24,11 @@ from dataclasses import dataclass, field, fields, replace
 from .errors import InputError, SettingsError
 
 __all__ = ["EncodeSettings", "FitSettings", "LOSSES", "MeshSettings", "RunSettings", "StorageSettings",
-           "FEATURE_CODINGS"]
+           "FEATURE_CODINGS", "MESH_CODINGS"]
 
 LOSSES = ("auto", "mse", "relmse", "logmse")
 FEATURE_CODINGS = ("predicted", "plain")
+MESH_CODINGS = ("derived", "draco")
 
 
 def _integer(obj, name: str, lo: int | None, hi: int | None = None, optional: bool = False,
@@ -145,18 +146,21 @@ class StorageSettings:
     ``dfc.field.quantize.DEFAULT_FEATURE_BITS``, or fewer when a byte target is too small for them),
     ``feature_coding`` ("predicted": ``FEAC``; "plain": zstd, the 1.0 ``FEAT``), ``weight_bits`` of the integer
     weight matrices (2..16: a sign and a magnitude; None: float16 ``MLPW``), ``mesh_bits`` of the vertex positions
-    (1..23)."""
+    (1..23), ``mesh_coding`` ("derived": the free vertices on a coarse lattice and the triangles rebuilt by the
+    decoder, content 1.3; "draco": every vertex at ``mesh_bits`` and the triangles in a Draco stream)."""
 
     feature_bits: int | None = None
     feature_coding: str = "predicted"
     weight_bits: int | None = 8
     mesh_bits: int = 20
+    mesh_coding: str = "derived"
 
     def __post_init__(self):
         _integer(self, "feature_bits", 1, 16, optional=True)
         _choice(self, "feature_coding", FEATURE_CODINGS)
         _integer(self, "weight_bits", 2, 16, optional=True, note=" (a sign and a magnitude), or None for float16")
         _integer(self, "mesh_bits", 1, 23)
+        _choice(self, "mesh_coding", MESH_CODINGS)
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """An independent ``.dfield`` decoder written from ``spec/dfield.md`` and ``spec/field.md`` alone.
 
 It exists to prove that the two documents suffice to evaluate a field: it imports nothing from dfc
-(only numpy, zstandard, DracoPy and constriction, the libraries the spec names), skips CRCs and most validation, and evaluates ``f(x, t)`` in
+(only numpy, zstandard, DracoPy, constriction and pythoncdt, the libraries the spec names), skips CRCs and most validation, and evaluates ``f(x, t)`` in
 float64 throughout. Section numbers below are those of the spec documents ("D" = dfield.md,
 "F" = field.md).
 
@@ -17,10 +17,12 @@ from __future__ import annotations
 
 import json
 import struct
+from fractions import Fraction
 
 import constriction
 import DracoPy
 import numpy as np
+import pythoncdt
 import zstandard
 
 __all__ = ["ReferenceField", "read_chunks"]
@@ -56,27 +58,125 @@ def read_chunks(blob: bytes) -> dict[bytes, bytes]:
     return chunks
 
 
-def _decode_mesh(data: bytes, domain) -> tuple[np.ndarray, np.ndarray]:
+def _canonical(faces: np.ndarray) -> np.ndarray:
+    shift = np.argmin(faces, axis=1)[:, None]          # rotate: smallest index first
+    faces = np.take_along_axis(faces, (shift + np.arange(3)) % 3, axis=1)
+    return faces[np.lexsort((faces[:, 2], faces[:, 1], faces[:, 0]))]
+
+
+class _Bits:
+    """The MSB-first bit stream of MESH encoding 2 (D §6.1)."""
+
+    def __init__(self, data: bytes):
+        self.bits, self.pos = "".join(f"{b:08b}" for b in data), 0
+
+    def take(self, k: int) -> int:
+        self.pos += k
+        return int(self.bits[self.pos - k:self.pos] or "0", 2)
+
+    def rice(self, r: int) -> int:
+        ones = self.bits.index("0", self.pos) - self.pos
+        self.pos += ones + 1
+        return ones * 2**r + self.take(r)
+
+    def truncated(self, n: int) -> int:
+        k = n.bit_length() - 1
+        u = 2 ** (k + 1) - n
+        v = self.take(k)
+        return v if v < u else 2 * v + self.take(1) - u
+
+    def points(self, count: int, n: int, r: int) -> list[tuple[int, int]]:
+        out, x = [], 0
+        for _ in range(count):
+            x += self.rice(r)
+            out.append((x, self.truncated(n)))
+        return out
+
+
+def _locally_delaunay(vertices: np.ndarray, faces: np.ndarray, constraints: set) -> bool:
+    """Every interior edge not in ``constraints`` has its opposite vertex strictly outside the other face's
+    circumcircle, in exact rational arithmetic: the condition under which the CDT is unique (D §6.1)."""
+    opposite = {}
+    for f in faces.tolist():
+        for k in range(3):
+            opposite[(f[k], f[(k + 1) % 3])] = f[(k + 2) % 3]
+    for (a, b), c in opposite.items():
+        if a > b or (b, a) not in opposite or (a, b) in constraints:
+            continue
+        d = opposite[(b, a)]
+        (ax, ay), (bx, by), (cx, cy), (dx, dy) = ([Fraction(float(t)) for t in vertices[i]] for i in (a, b, c, d))
+        ax, ay, bx, by, cx, cy = ax - dx, ay - dy, bx - dx, by - dy, cx - dx, cy - dy
+        det = ((ax * ax + ay * ay) * (bx * cy - cx * by) + (bx * bx + by * by) * (cx * ay - ax * cy)
+               + (cx * cx + cy * cy) * (ax * by - bx * ay))
+        if det >= 0:
+            return False
+    return True
+
+
+def _derived_faces(vertices: np.ndarray, edges: np.ndarray, domain) -> np.ndarray:
+    """The constrained Delaunay triangulation of D §6.1 encoding 2, with pythoncdt, checked to be the unique one."""
+    x0, y0, x1, y1 = domain
+    border = []
+    for axis, value in ((1, y0), (0, x1), (1, y1), (0, x0)):
+        on = np.flatnonzero(vertices[:, axis] == value)
+        on = on[np.argsort(vertices[on, 1 - axis])]
+        border += list(zip(on[:-1].tolist(), on[1:].tolist()))
+    constraints = border + [tuple(e) for e in edges.tolist()]
+    t = pythoncdt.Triangulation(pythoncdt.VertexInsertionOrder.AS_PROVIDED,
+                                pythoncdt.IntersectingConstraintEdges.NOT_ALLOWED, 0.0)
+    t.insert_vertices(np.ascontiguousarray(vertices))
+    t.insert_edges(np.array(constraints, np.uint32).reshape(-1, 2))
+    t.erase_outer_triangles()
+    if t.vertices_count() != len(vertices):
+        raise ValueError("MESH: the constraint edges cross")
+    faces = t.triangles_array()["vertices"].astype(np.int64)
+    p = vertices[faces]
+    cw = _cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
+    faces[cw] = faces[cw][:, ::-1]
+    if not _locally_delaunay(vertices, faces, {tuple(sorted(e)) for e in constraints}):
+        raise ValueError("MESH: the derived triangulation is not unique")
+    return _canonical(faces)
+
+
+def _topology_edges(topo: bytes) -> np.ndarray:
+    """TOPO's disc_edges and curve_endpoints, (E + C, 2) (D §6.2), the constraints TOPO implies (D §6.1)."""
+    E, C = struct.unpack_from("<II", topo)
+    raw = _unzstd(topo[16:])
+    edges = np.frombuffer(raw, "<u4", 2 * E).reshape(E, 2)
+    ends = np.frombuffer(raw, "<u4", 2 * C, 12 * E + 4 * C).reshape(C, 2)
+    return np.concatenate([edges, ends]).astype(np.int64)
+
+
+def _decode_mesh(data: bytes, domain, topo: bytes) -> tuple[np.ndarray, np.ndarray]:
     """MESH chunk -> vertices (V, 2) float64, faces (T, 3) int64 in canonical order (D §6.1)."""
-    encoding, bits, _, V, T = struct.unpack_from("<BBHII", data)
+    encoding, bits, shift, V, T = struct.unpack_from("<BBHII", data)
     payload = data[12:]
     if encoding == 1:
         raw = _unzstd(payload)
         vertices = np.frombuffer(raw, "<f8", 2 * V).reshape(V, 2).copy()
         return vertices, np.frombuffer(raw, "<u4", 3 * T, 16 * V).reshape(T, 3).astype(np.int64)
-    mesh = DracoPy.decode(bytes(payload))
-    q = np.rint(np.asarray(mesh.points, np.float64)[:, :2]).astype(np.int64)
-    faces = np.asarray(mesh.faces, np.int64)
-    order = np.lexsort((q[:, 1], q[:, 0]))           # by qx, ties by qy
-    rank = np.empty(V, np.int64)
-    rank[order] = np.arange(V)
-    faces = rank[faces]
-    shift = np.argmin(faces, axis=1)[:, None]          # rotate: smallest index first
-    faces = np.take_along_axis(faces, (shift + np.arange(3)) % 3, axis=1)
-    faces = faces[np.lexsort((faces[:, 2], faces[:, 1], faces[:, 0]))]
-    t = q[order] / float(2**bits - 1)
+    M = 2**bits - 1
+    if encoding == 2:
+        n_full, K, rf, rc, _ = struct.unpack_from("<IIBBH", payload)
+        bits_in = _Bits(payload[12:])
+        q = bits_in.points(n_full, M + 1, rf)
+        q += [(min(i * 2**shift, M), min(j * 2**shift, M)) for i, j in bits_in.points(V - n_full, 2 ** (bits - shift) + 1, rc)]
+        extra = [(bits_in.truncated(V), bits_in.truncated(V)) for _ in range(K)]
+        q = np.array(sorted(q), np.int64)                # by qx, ties by qy
+    else:
+        mesh = DracoPy.decode(bytes(payload))
+        q = np.rint(np.asarray(mesh.points, np.float64)[:, :2]).astype(np.int64)
+        order = np.lexsort((q[:, 1], q[:, 0]))           # by qx, ties by qy
+        rank = np.empty(V, np.int64)
+        rank[order] = np.arange(V)
+        faces = _canonical(rank[np.asarray(mesh.faces, np.int64)])
+        q = q[order]
+    t = q / float(M)
     x0, y0, x1, y1 = domain
     vertices = np.stack([(1.0 - t[:, 0]) * x0 + t[:, 0] * x1, (1.0 - t[:, 1]) * y0 + t[:, 1] * y1], axis=1)
+    if encoding == 2:
+        faces = _derived_faces(vertices, np.concatenate([_topology_edges(topo), np.array(extra, np.int64).reshape(-1, 2)]),
+                               domain)
     return vertices, faces
 
 
@@ -231,7 +331,7 @@ class ReferenceField:
     def from_bytes(cls, blob: bytes) -> ReferenceField:
         ch = read_chunks(blob)
         header = json.loads(_unzstd(ch[b"HEAD"]))
-        vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"])
+        vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"], ch[b"TOPO"])
         edges, ctri, ends, cp = _decode_topology(ch[b"TOPO"], vertices, faces)
         mlp = _decode_mlp(ch[b"MLPW"]) if b"MLPW" in ch else _decode_mlpq(ch[b"MLPQ"])
         field = cls(header, vertices, faces, edges, ctri, ends, cp, mlp)

@@ -135,13 +135,14 @@ def test_fill_points_spend_what_the_target_leaves(scene):
     now = size_of(model)
     none = fill_points(model, curves, settings, np.zeros((0, 2)), xy, err, size_of, int(now / FILL))
     assert len(none) == 0
+    # a vertex costs little in the derived mesh encoding: every candidate grows the file by about a quarter
     small, large = (fill_points(model, curves, settings, np.zeros((0, 2)), xy, err, size_of, int(f * now))
-                    for f in (1.3, 2.0))
+                    for f in (1.1, 1.3))
     assert 0 < len(small) < len(large)
     refined = build_mesh(curves, settings, extra_points=large)
     carried = FieldModel.from_config(refined, model.config())
     carry_over(model, carried, xy)
-    assert size_of(carried) <= FILL * 2.0 * now
+    assert size_of(carried) <= FILL * 1.3 * now
 
 
 @pytest.mark.slow

@@ -125,9 +125,11 @@ def _edges(ref):
 
 
 def test_geometry_and_layout_match_dfc(scene, mesh):
-    model, ref, _ = _encode(mesh)
+    model, ref, blob = _encode(mesh)
+    assert read_chunks(blob)[b"MESH"][0] == 2  # derived: the reference rebuilds the triangles itself (D §6.1)
     m = model.field.mesh
     assert np.array_equal(ref.vertices, m.vertices) and np.array_equal(ref.faces, m.triangles)
+    assert np.array_equal(ref.vertices, mesh.vertices) and np.array_equal(ref.faces, mesh.triangles)
     assert np.array_equal(ref.control_points, m.curve_control_points)
     lay = model.field.layout
     assert ref.n_rows == lay.n_features and np.array_equal(ref.offset, lay.vertex_offset)
@@ -215,7 +217,7 @@ def test_raw_mesh_encoding_agrees():
     _agree(model, ref, np.concatenate([_random(ref, 1000, 8), _curve_points(ref, (0.5,))[0]]))
 
 
-@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units"])
+@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived"])
 def test_golden_tiny_file_agrees(name):
     blob = (GOLDEN / f"{name}.dfield").read_bytes()
     model = from_contents(decode_dfield(blob))

@@ -13,7 +13,7 @@ import click
 import numpy as np
 
 from ..io.atomic import write_bytes_atomic
-from ..settings import FEATURE_CODINGS, LOSSES, FitSettings, RunSettings, StorageSettings
+from ..settings import FEATURE_CODINGS, LOSSES, MESH_CODINGS, FitSettings, RunSettings, StorageSettings
 from .options import (
     binary_stream,
     check_device,
@@ -101,7 +101,11 @@ def _curves_arg(ctx, param, value):
               help="Bits per stored feature value  [default: 10; 8, else 6, when --target-bytes is too small for "
                    "the smallest mesh at 10].")
 @click.option("--mesh-bits", type=int, default=StorageSettings.mesh_bits, show_default=True,
-              help="Draco quantisation bits of the vertex positions (1..23).")
+              help="Quantisation bits of the vertex positions on the curves (1..23).")
+@click.option("--mesh-coding", type=click.Choice(MESH_CODINGS), default=StorageSettings.mesh_coding,
+              show_default=True,
+              help="derived: free vertices on a coarse lattice, triangles rebuilt by the decoder (content 1.3); "
+                   "draco: every vertex at --mesh-bits, triangles in a Draco stream (1.2).")
 @click.option("--weight-bits", type=int, default=StorageSettings.weight_bits, show_default=True,
               help="Bits per integer MLP weight (2..16; per-row scales, learnt in the quantisation-aware steps); "
                    "0: float16.")

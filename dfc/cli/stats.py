@@ -28,7 +28,8 @@ def file_stats(path) -> dict:
         "time_axis": None if times is None else {"slices": len(times), "first": times[0], "last": times[-1]},
         "mesh": {"vertices": m["vertices"], "triangles": m["triangles"], "discontinuous_vertices": mesh.n_disc_vertices,
                  "discontinuous_edges": m["disc_edges"], "curved_triangles": m["curves"],
-                 "encoding": m["encoding"], "bits": m["bits"]},
+                 "encoding": m["encoding"], "bits": m["bits"],
+                 "free_vertex_bits": m["bits"] - m["shift"] if m["encoding"] == "derived" else None},
         "parameters": {"features": feat["slices"] * feat["rows"] * feat["width"], "feature_rows": feat["rows"],
                        "feature_dim": feat["width"], "feature_bits": feat["bits"], "feature_coding": feat["coding"],
                        "mlp": info["mlp"]["parameters"], "mlp_weight_bits": info["mlp"]["weight_bits"] or None},
@@ -67,7 +68,9 @@ def command(input_path, json_path, quiet):
         ("vertices", m["vertices"]), ("triangles", m["triangles"]),
         ("discontinuous vertices", m["discontinuous_vertices"]), ("discontinuous edges", m["discontinuous_edges"]),
         ("curved triangles", m["curved_triangles"]),
-        ("mesh encoding", f"{m['encoding']}" + (f", {m['bits']} bits" if m["encoding"] == "draco" else "")),
+        ("mesh encoding", f"{m['encoding']}" + (f", {m['bits']} bits" if m["encoding"] == "draco" else "")
+         + (f", {m['bits']} bits on the curves, {m['free_vertex_bits']} elsewhere, triangles derived"
+            if m["encoding"] == "derived" else "")),
         ("feature parameters", f"{p['features']} ({p['feature_rows']} rows x {p['feature_dim']}, {p['feature_bits']} bits, "
                                f"{p['feature_coding']})"),
         ("MLP parameters", f"{p['mlp']} (" + ("float16" if not p["mlp_weight_bits"] else

@@ -36,10 +36,14 @@ from .mesh import Mesh, min_side_distance
 from .plane import cross
 from .tolerances import tol
 
-__all__ = ["triangulate", "DEFAULT_TRIANGLES"]
+__all__ = ["triangulate", "constrained_delaunay", "DEFAULT_TRIANGLES", "STEINER_STEPS_PER_EDGE"]
 
 DEFAULT_TRIANGLES = 2000
 """Triangle count the default density aims at over the whole domain (area bound = domain area / 1000)."""
+
+STEINER_STEPS_PER_EDGE = 8
+"""With ``lattice_bits``, free vertices snap to a lattice whose step is at most the nominal edge length over this
+(a power of two of grid steps; CHANGELOG.md, "Meshes derived in the decoder")."""
 
 _MAX_ROUNDS = 60  # conflict-loop rounds; each halves the offending pieces
 _MAX_MIN_ANGLE = 34.0  # Ruppert-style refinement terminates for angle bounds below about 34°
@@ -56,6 +60,7 @@ def triangulate(
     max_triangles: int | None = None,
     min_angle: float = 20.0,
     extra_points: np.ndarray | None = None,
+    lattice_bits: int | None = None,
     stats: dict | None = None,
 ) -> Mesh:
     """Curved constrained triangulation of ``curves.domain`` with every piece of ``curves`` built in.
@@ -79,6 +84,11 @@ def triangulate(
         Further vertices (error-driven refinement), added to the Steiner points the size knobs give (which
         ``max_triangles`` alone caps) except where one would lie in a curved piece's tangent triangle, outside the
         domain's interior, or within ``tol.snap_rel`` of the diagonal of an input vertex or constraint.
+    lattice_bits : int, optional
+        Snap the free vertices (Steiner and ``extra_points``) to a sub-lattice of the ``lattice_bits`` grid of
+        ``dfc.io.meshcodec`` (coordinates ``min(k · 2**s, 2**bits - 1)`` grid steps; ``2**s`` steps at most the
+        nominal edge length over ``STEINER_STEPS_PER_EDGE``) before the final triangulation, dropping those that then
+        coincide, land near a constraint or in a tangent triangle; the vertices on curves keep their positions.
     stats : dict, optional
         Filled with timings in seconds (``clean_s``, ``conflict_s``, ``density_s``, ``cdt_s``) and counts
         (``pieces_in``, ``pieces_clean``, ``pieces_final``, ``apexes``, ``steiner``, ``vertices``, ``triangles``).
@@ -125,6 +135,11 @@ def triangulate(
     area0, budget = _size_target(domain, max_area, edge_length, max_triangles, floor_count, len(cp))
     target = _target_area(area0, grading, np.concatenate([lines.reshape(-1, 2, 2), cp[:, [0, 3]]]), cp, domain)
     steiner = _steiner_points(points, fixed, domain, tangent, target, area0, budget, min_angle, eps)
+    shift = None if lattice_bits is None else _lattice_shift(
+        domain, lattice_bits, _line_length(domain, max_area, edge_length, max_triangles))
+    if shift is not None:
+        steiner = _free_points(_snap(steiner, domain, lattice_bits, shift), points, np.zeros((0, 2)), lines, cp,
+                               tangent, domain, eps, border=True)
     stats["density_s"] = time.perf_counter() - clock
 
     clock = time.perf_counter()
@@ -132,8 +147,10 @@ def triangulate(
                     degree=degree, curve_piece=curve_piece, apex=apex, domain=domain, eps=eps)
     mesh, n_apex, steiner = _within_budget(build, steiner, max_triangles)
     if extra_points is not None and len(extra_points):
-        extra = _free_points(np.asarray(extra_points, np.float64).reshape(-1, 2), points, steiner, lines,
-                             cp, tangent, domain, eps)
+        extra = np.asarray(extra_points, np.float64).reshape(-1, 2)
+        if shift is not None:
+            extra = _snap(extra, domain, lattice_bits, shift)
+        extra = _free_points(extra, points, steiner, lines, cp, tangent, domain, eps)
         if len(extra):
             steiner = np.concatenate([steiner, extra])
             mesh, n_apex = build(steiner)
@@ -187,13 +204,17 @@ def _within_budget(build, steiner: np.ndarray, max_triangles: int | None):
     return mesh, n_apex, steiner
 
 
-def _free_points(extra, points, steiner, lines, cp, tangent, domain, eps) -> np.ndarray:
-    """The points of ``extra`` (M, 2) strictly inside the domain, outside every tangent triangle (C, 3, 2) and
-    farther than ``tol.snap_rel`` of the diagonal from the vertices (``points``, ``steiner``), line pieces (L, 2, 2),
-    curved pieces' chords and from each other (the first of two close points is kept)."""
+def _free_points(extra, points, steiner, lines, cp, tangent, domain, eps, border=False) -> np.ndarray:
+    """The points of ``extra`` (M, 2) strictly inside the domain (``border``: or exactly on its border), outside every
+    tangent triangle (C, 3, 2) and farther than ``tol.snap_rel`` of the diagonal from the vertices (``points``,
+    ``steiner``), line pieces (L, 2, 2), curved pieces' chords and from each other (the first of two close points is
+    kept)."""
     x0, y0, x1, y1 = domain
     gap = tol.snap_rel * float(np.hypot(x1 - x0, y1 - y0))
     keep = (extra[:, 0] > x0 + gap) & (extra[:, 0] < x1 - gap) & (extra[:, 1] > y0 + gap) & (extra[:, 1] < y1 - gap)
+    if border:
+        inside = (extra[:, 0] >= x0) & (extra[:, 0] <= x1) & (extra[:, 1] >= y0) & (extra[:, 1] <= y1)
+        keep |= inside & _on_border(extra, domain)
     if len(tangent):
         lo, hi = tangent.min(axis=1), tangent.max(axis=1)
         i, k = _box_pairs(lo, hi, extra, extra)
@@ -218,6 +239,29 @@ def _free_points(extra, points, steiner, lines, cp, tangent, domain, eps) -> np.
         drop[pairs.max(axis=1)] = True
         extra = extra[~drop]
     return extra
+
+
+def _lattice_shift(domain, bits: int, edge: float) -> int | None:
+    """``s`` of the free vertices' lattice (``triangulate``'s ``lattice_bits``): the largest with ``2**s`` grid steps
+    at most ``edge / STEINER_STEPS_PER_EDGE`` along the longer side, at most ``bits - 1``; None below 2 steps."""
+    if not 2 <= bits <= 23:
+        raise MeshError(f"triangulate: lattice_bits must be in 2..23, got {bits!r}")
+    x0, y0, x1, y1 = domain
+    steps = edge / STEINER_STEPS_PER_EDGE * (2**bits - 1) / max(x1 - x0, y1 - y0)
+    if not steps >= 2.0:
+        return None
+    return min(int(np.floor(np.log2(steps))), bits - 1)
+
+
+def _snap(p: np.ndarray, domain, bits: int, shift: int) -> np.ndarray:
+    """Points (N, 2) moved to the nearest lattice point ``min(k · 2**shift, M)`` grid steps (``M = 2**bits - 1``),
+    in domain coordinates exactly as ``dfc.io.meshcodec`` decodes grid integers (spec/dfield.md §1)."""
+    M = 2**bits - 1
+    lo, hi = np.array(domain[:2], np.float64), np.array(domain[2:], np.float64)
+    q = np.clip(np.rint((p - lo) / (hi - lo) * M), 0, M)
+    k = np.rint(q / 2.0**shift)
+    t = np.minimum(k * 2.0**shift, M) / M
+    return (1.0 - t) * lo + t * hi
 
 
 def _snap_ends_to_border(cp, domain, eps) -> np.ndarray:
@@ -523,6 +567,26 @@ def _cdt(points, edges, domain) -> cdt.Triangulation:
     all_edges = np.concatenate([_border_edges(points, domain), edges.reshape(-1, 2)])
     t.insert_edges(np.ascontiguousarray(all_edges, dtype=np.uint32))
     return t
+
+
+def constrained_delaunay(points: np.ndarray, edges: np.ndarray, domain) -> np.ndarray:
+    """Triangles (T, 3) int64, counter-clockwise, of the constrained Delaunay triangulation of ``points`` (V, 2)
+    float64 (inside the closed ``domain``, distinct) with the constraint ``edges`` (K, 2) int64 and the chains of
+    points on each side of the domain, as pythoncdt computes it (points inserted in the given order).
+
+    Raises ``MeshError`` when constraints cross or a point lies on a constraint (the triangulation would need a
+    vertex that is not in ``points`` or would split an edge), or when the triangles do not cover every point."""
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    t = _cdt(points, np.asarray(edges, np.int64).reshape(-1, 2), domain)
+    t.erase_outer_triangles()
+    _check_constraints_kept(t, points, domain)
+    v, tri = _arrays(t)
+    p = v[tri]
+    flip = cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
+    tri[flip] = tri[flip][:, ::-1]
+    if len(np.unique(tri)) != len(points):
+        raise MeshError("triangulate: a point is in no triangle of the constrained Delaunay triangulation")
+    return tri
 
 
 def _arrays(t: cdt.Triangulation) -> tuple[np.ndarray, np.ndarray]:

@@ -55,7 +55,7 @@ __all__ = [
 
 SIGNATURE = b"\x89DFL\r\n\x1a\n"
 CONTAINER_VERSION = (1, 1)
-CONTENT_VERSION = (1, 2)
+CONTENT_VERSION = (1, 3)
 MAX_FILE_BYTES = 2**30
 MAX_CHUNK = 2**30 - 1
 MAX_HEADER_JSON = 2**20
@@ -463,7 +463,7 @@ def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> by
 # ----------------------------------------------------------------------------------------------- public API
 def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATURE_BITS,
                   compression_level: int = 19, feature_coding: str = "predicted", weight_bits: int | None = None,
-                  mesh_validated: bool = False) -> tuple[bytes, dict[str, int]]:
+                  mesh_validated: bool = False, mesh_coding: str = "derived") -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
 
     ``contents.mesh`` should be ``roundtrip_mesh(mesh, bits)``, the view the features were fitted on: it is
@@ -474,6 +474,8 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
     that many bits per row (``MLPQ``; ``dfc.field.quantize.quantize_weights``). Raises ``FormatError`` when the
     contents would make an invalid file and ``MeshError`` when the mesh is invalid. ``mesh_validated``: the mesh
     came from ``roundtrip_mesh`` (validated there), so it is not validated again (``encode_roundtripped``).
+    ``mesh_coding``: "derived" stores the mesh with the derived encoding when that is smaller and exact (content
+    1.3), "draco" never (``dfc.io.meshcodec.encode_roundtripped``).
     """
     F = np.asarray(contents.features)
     if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
@@ -493,7 +495,8 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
         text = json.dumps(header, allow_nan=False, ensure_ascii=False, separators=(",", ":")).encode("utf-8")
     except (TypeError, ValueError) as exc:
         raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
-    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level, validated=mesh_validated)
+    mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level, validated=mesh_validated,
+                                               coding=mesh_coding)
     if feature_coding == "predicted":
         from .featcodec import encode_feac
 

@@ -120,7 +120,7 @@ def load(path: str | Path, *, device: str = "cpu") -> FieldModel:
 def storage(settings) -> dict:
     """``dfc.io.container.encode_dfield``'s keyword arguments for ``settings`` (an ``EncodeSettings``)."""
     return {"feature_bits": settings.feature_bits, "feature_coding": settings.feature_coding,
-            "weight_bits": settings.weight_bits}
+            "weight_bits": settings.weight_bits, "mesh_coding": settings.mesh_coding}
 
 
 def encode_model(model, settings, info: dict | None = None, pixel_size=None, value_map: ValueMap | None = None,

@@ -1,7 +1,9 @@
 """Mesh encoding for ``.dfield`` files: the ``MESH`` and ``TOPO`` chunk payloads (spec/dfield.md §6.1–6.2).
 
 Vertices are quantised to an integer grid over the domain rectangle (``M = 2**bits - 1`` steps per axis, so
-border vertices stay exactly on the border) and the grid mesh is compressed with Draco's edgebreaker. Draco
+border vertices stay exactly on the border) and the grid mesh is compressed with Draco's edgebreaker, or (the
+derived encoding, content 1.3) stored as the grid points and the constraint edges TOPO does not imply, the decoder
+rebuilding the triangles as their unique constrained Delaunay triangulation. Draco
 reorders vertices and faces, so the decoder puts the mesh in a canonical order (vertices by ``(qx, qy)``, faces
 rotated to start at their smallest index, then sorted); ``roundtrip_mesh`` returns that decoder view and the
 encoder fits on it. The raw encoding stores float64 vertices losslessly and keeps the order.
@@ -12,6 +14,7 @@ Every function that reads bytes raises ``FormatError`` (and nothing else) on any
 from __future__ import annotations
 
 import struct
+from fractions import Fraction
 
 import DracoPy
 import numpy as np
@@ -19,12 +22,15 @@ import zstandard
 
 from ..errors import FormatError, MeshError
 from ..geometry.mesh import Mesh
+from ..geometry.triangulate import constrained_delaunay
 from ..geometry.plane import cross
 from ..geometry.tolerances import tol
 
 __all__ = [
     "DRACO",
     "RAW",
+    "DERIVED",
+    "MESH_CODINGS",
     "MAX_MESH_BITS",
     "encode_mesh",
     "decode_mesh",
@@ -36,7 +42,9 @@ __all__ = [
     "decompress",
 ]
 
-DRACO, RAW = 0, 1
+DRACO, RAW, DERIVED = 0, 1, 2
+MESH_CODINGS = ("derived", "draco")
+"""What ``encode_roundtripped`` tries first: the derived encoding (then Draco), or Draco only (the 1.2 files)."""
 MAX_MESH_BITS = 23
 """Draco quantises ``value + 0.5`` in float32, exact for grid integers below 2**23."""
 MAX_VERTICES = 2**24
@@ -45,6 +53,11 @@ MAX_DISC_EDGES = 2**25
 DRACO_LEVEL = 10
 
 _MESH_HEAD = struct.Struct("<BBHII")
+_DERIVED_HEAD = struct.Struct("<IIBBH")
+_DERIVED_ROUNDS = 32
+"""Triangulations the derived encoder tries, each constraining more of the mesh's edges, before it gives up."""
+_INCIRCLE_FILTER = 1e-12
+"""Relative error bound (× the permanent) under which the float incircle test is redone exactly."""
 _TOPO_HEAD = struct.Struct("<IIIB3x")
 _CP_I32, _CP_F64 = 0, 1
 _MAX_WINDOW = 2**27
@@ -199,7 +212,7 @@ def _curve_frame(vertices, triangles, curved_triangles, endpoints):
     return v[ends[:, 0]], v[ends[:, 1]], v[apex]
 
 
-def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19) -> tuple[bytes, bytes] | None:
+def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool = False) -> tuple[bytes, bytes] | None:
     """Encode ``mesh`` as (MESH, TOPO) chunk data with one fixed encoding, no fallback.
 
     Parameters
@@ -207,12 +220,23 @@ def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19) -> tuple[bytes
     mesh : Mesh
     bits : int in 1..23 for Draco-quantised vertices, or None for the lossless raw encoding
     level : zstd level of the TOPO (and raw MESH) payloads
+    derived : the derived encoding (vertices on the ``bits`` grid, 2..23, triangles rebuilt by the decoder)
 
     Returns
     -------
-    (mesh_data, topo_data) bytes, or None when ``bits`` puts two vertices on one grid point or a control
-    point is too far from its triangle for the fixed-point barycentric format.
+    (mesh_data, topo_data) bytes, or None when ``bits`` puts two vertices on one grid point, a control
+    point is too far from its triangle for the fixed-point barycentric format, or (``derived``) the mesh is not on
+    the grid or cannot be made the unique constrained Delaunay triangulation of its vertices.
     """
+    if derived:
+        mesh_data = _encode_derived(mesh, bits)
+        if mesh_data is None:
+            return None
+        q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
+        vmap = _inverse(_vertex_order(q))
+        _, tmap = _canonical_faces(vmap[np.asarray(mesh.triangles, np.int64)])
+        topo_data = _encode_topology(mesh, vmap, tmap, _CP_I32, level)
+        return None if topo_data is None else (mesh_data, topo_data)
     V, T = mesh.n_vertices, mesh.n_triangles
     tri = np.asarray(mesh.triangles, np.int64)
     if bits is None:
@@ -239,22 +263,309 @@ def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19) -> tuple[bytes
     return None if topo_data is None else (_MESH_HEAD.pack(DRACO, bits, 0, V, T) + blob, topo_data)
 
 
+# ----------------------------------------------------------------------------------------------- derived encoding
+class _BitWriter:
+    """MSB-first bit string (spec §6.1, encoding 2)."""
+
+    def __init__(self):
+        self.parts: list[str] = []
+
+    def fixed(self, value: int, width: int) -> None:
+        if width:
+            self.parts.append(format(value, f"0{width}b"))
+
+    def rice(self, value: int, r: int) -> None:
+        self.parts.append("1" * (value >> r) + "0")
+        self.fixed(value & ((1 << r) - 1), r)
+
+    def truncated(self, value: int, n: int) -> None:
+        k = n.bit_length() - 1
+        u = (1 << (k + 1)) - n
+        if value < u:
+            self.fixed(value, k)
+        else:
+            self.fixed(value + u, k + 1)
+
+    def to_bytes(self) -> bytes:
+        bits = "".join(self.parts)
+        bits += "0" * (-len(bits) % 8)
+        return int(bits, 2).to_bytes(len(bits) // 8, "big") if bits else b""
+
+
+class _BitReader:
+    """Reads what ``_BitWriter`` wrote; ``FormatError`` past the end."""
+
+    def __init__(self, data: bytes):
+        self.bits = "".join(format(b, "08b") for b in data)
+        self.pos = 0
+
+    def fixed(self, width: int) -> int:
+        if not width:
+            return 0
+        end = self.pos + width
+        if end > len(self.bits):
+            raise FormatError("MESH: derived vertex stream truncated")
+        value = int(self.bits[self.pos:end], 2)
+        self.pos = end
+        return value
+
+    def rice(self, r: int) -> int:
+        stop = self.bits.find("0", self.pos)
+        if stop < 0:
+            raise FormatError("MESH: derived vertex stream truncated")
+        high = stop - self.pos
+        self.pos = stop + 1
+        return (high << r) | self.fixed(r)
+
+    def truncated(self, n: int) -> int:
+        k = n.bit_length() - 1
+        u = (1 << (k + 1)) - n
+        value = self.fixed(k)
+        return value if value < u else ((value << 1) | self.fixed(1)) - u
+
+    def finish(self) -> None:
+        rest = self.bits[self.pos:]
+        if len(rest) >= 8 or "1" in rest:
+            raise FormatError("MESH: bytes or non-zero padding after the derived vertex stream")
+
+
+def _lattice(q: np.ndarray, bits: int, shift: int) -> np.ndarray:
+    """Whether each grid coordinate pair (N, 2) is a lattice point: both coordinates multiples of ``2**shift`` or M."""
+    return np.all((q % (1 << shift) == 0) | (q == 2**bits - 1), axis=1)
+
+
+def _rice_cost(gaps: np.ndarray) -> tuple[int, int]:
+    """(best Rice parameter, its bits) for non-negative gaps (N,) int64."""
+    costs = [int((gaps >> r).sum()) + len(gaps) * (r + 1) for r in range(_MAX_RICE + 1)]
+    r = int(np.argmin(costs))
+    return r, costs[r]
+
+
+def _truncated_cost(values: np.ndarray, n: int) -> int:
+    k = n.bit_length() - 1
+    return int(len(values) * k + np.count_nonzero(values >= (1 << (k + 1)) - n))
+
+
+def _sorted_points(p: np.ndarray) -> np.ndarray:
+    return p[np.lexsort((p[:, 1], p[:, 0]))]
+
+
+def _point_set_cost(p: np.ndarray, n: int) -> tuple[int, int]:
+    """(Rice parameter, bits) of the sorted points (N, 2) with coordinates in [0, n)."""
+    if not len(p):
+        return 0, 0
+    p = _sorted_points(p)
+    r, bits = _rice_cost(np.diff(p[:, 0], prepend=0))
+    return r, bits + _truncated_cost(p[:, 1], n)
+
+
+def _write_points(w: _BitWriter, p: np.ndarray, n: int, r: int) -> None:
+    x_prev = 0
+    for x, y in _sorted_points(p).tolist():
+        w.rice(x - x_prev, r)
+        w.truncated(y, n)
+        x_prev = x
+
+
+def _read_points(reader: _BitReader, count: int, n: int, r: int) -> np.ndarray:
+    out = np.empty((count, 2), np.int64)
+    x = 0
+    for i in range(count):
+        x += reader.rice(r)
+        if x >= n:
+            raise FormatError("MESH: derived vertex coordinate out of range")
+        out[i] = x, reader.truncated(n)
+    return out
+
+
+_MAX_RICE = 24
+
+
+def _edge_keys(edges: np.ndarray, V: int) -> np.ndarray:
+    e = np.sort(np.asarray(edges, np.int64).reshape(-1, 2), axis=1)
+    return e[:, 0] * V + e[:, 1]
+
+
+def _interior_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Interior edges of CCW faces (T, 3): (K, 4) int64 rows (u, v, w, z), faces (u, v, w) and (v, u, z)."""
+    V = int(faces.max()) + 1
+    u = faces.reshape(-1)
+    v = np.roll(faces, -1, axis=1).reshape(-1)
+    w = np.roll(faces, -2, axis=1).reshape(-1)
+    key = u * V + v
+    order = np.argsort(key)
+    pos = np.searchsorted(key[order], v * V + u)
+    pos = np.minimum(pos, len(key) - 1)
+    found = (key[order][pos] == v * V + u) & (u < v)
+    return np.stack([u[found], v[found], w[found], w[order[pos[found]]]], axis=1)
+
+
+def _incircle_sign(p: np.ndarray) -> np.ndarray:
+    """Exact sign of the incircle determinant of points (K, 4, 2) float64 (a, b, c counter-clockwise, d): > 0 when
+    d is strictly inside the circle through a, b, c. Float evaluation, redone in rationals where it is not certain."""
+    d = p[:, :3] - p[:, 3:4]
+    lift = (d ** 2).sum(axis=2)
+    c01 = d[:, 1, 0] * d[:, 2, 1] - d[:, 2, 0] * d[:, 1, 1]
+    c12 = d[:, 2, 0] * d[:, 0, 1] - d[:, 0, 0] * d[:, 2, 1]
+    c20 = d[:, 0, 0] * d[:, 1, 1] - d[:, 1, 0] * d[:, 0, 1]
+    det = lift[:, 0] * c01 + lift[:, 1] * c12 + lift[:, 2] * c20
+    a = np.abs(d)
+    perm = (lift[:, 0] * (a[:, 1, 0] * a[:, 2, 1] + a[:, 2, 0] * a[:, 1, 1])
+            + lift[:, 1] * (a[:, 2, 0] * a[:, 0, 1] + a[:, 0, 0] * a[:, 2, 1])
+            + lift[:, 2] * (a[:, 0, 0] * a[:, 1, 1] + a[:, 1, 0] * a[:, 0, 1]))
+    sign = np.sign(det).astype(np.int64)
+    for k in np.flatnonzero(np.abs(det) <= _INCIRCLE_FILTER * perm):
+        (ax, ay), (bx, by), (cx, cy), (dx, dy) = ([Fraction(float(c)) for c in xy] for xy in p[k])
+        ax, ay, bx, by, cx, cy = ax - dx, ay - dy, bx - dx, by - dy, cx - dx, cy - dy
+        exact = ((ax * ax + ay * ay) * (bx * cy - cx * by) + (bx * bx + by * by) * (cx * ay - ax * cy)
+                 + (cx * cx + cy * cy) * (ax * by - bx * ay))
+        sign[k] = (exact > 0) - (exact < 0)
+    return sign
+
+
+def _not_strictly_delaunay(vertices: np.ndarray, faces: np.ndarray, constrained: np.ndarray) -> np.ndarray:
+    """Interior edges (K, 2) of ``faces`` not in ``constrained`` (keys, ``_edge_keys``) whose opposite vertex is on or
+    inside the circumcircle of the other face: the edges that make a constrained Delaunay triangulation not unique
+    (cocircular) or not Delaunay."""
+    quad = _interior_edges(faces)
+    quad = quad[~np.isin(_edge_keys(quad[:, :2], len(vertices)), constrained)]
+    if not len(quad):
+        return np.zeros((0, 2), np.int64)
+    return quad[_incircle_sign(vertices[quad]) >= 0][:, :2]
+
+
+def _derived_faces(vertices: np.ndarray, constraints: np.ndarray, domain) -> np.ndarray:
+    """Canonical faces (T, 3) of the constrained Delaunay triangulation of canonical ``vertices`` with
+    ``constraints`` (K, 2); ``MeshError`` when constraints cross or a vertex lies on one."""
+    return _canonical_faces(constrained_delaunay(vertices, constraints, domain))[0]
+
+
+def _derived_constraints(vertices, faces, implied, domain) -> np.ndarray | None:
+    """The edges (K, 2) beyond ``implied`` (J, 2) whose constraint makes ``faces`` (canonical, over canonical
+    ``vertices``) the unique constrained Delaunay triangulation, or None when none is found."""
+    V = len(vertices)
+    target = _edge_keys(faces[:, [0, 1, 1, 2, 2, 0]], V)
+    extra = np.zeros((0, 2), np.int64)
+    for _ in range(_DERIVED_ROUNDS):
+        constraints = np.concatenate([implied, extra])
+        try:
+            derived = _derived_faces(vertices, constraints, domain)
+        except MeshError:
+            return None
+        if len(derived) == len(faces) and np.array_equal(derived, faces):
+            add = _not_strictly_delaunay(vertices, faces, _edge_keys(constraints, V))
+        else:
+            keys = np.setdiff1d(target, _edge_keys(derived[:, [0, 1, 1, 2, 2, 0]], V))
+            add = np.stack([keys // V, keys % V], axis=1)
+        if not len(add):
+            return extra
+        keys = np.unique(_edge_keys(np.concatenate([extra, add]), V))
+        extra = np.stack([keys // V, keys % V], axis=1)
+    return None
+
+
+def _encode_derived(mesh: Mesh, bits: int) -> bytes | None:
+    """MESH chunk data of the derived encoding, or None when ``mesh`` is not on the ``bits`` grid or no set of
+    constraint edges makes it the unique constrained Delaunay triangulation of its vertices."""
+    if not 2 <= bits <= MAX_MESH_BITS or not _on_grid(mesh, bits):
+        return None
+    V, T = mesh.n_vertices, mesh.n_triangles
+    q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
+    order = _vertex_order(q)
+    if order is None:
+        return None
+    vmap, q = _inverse(order), q[order]
+    faces, _ = _canonical_faces(vmap[np.asarray(mesh.triangles, np.int64)])
+    vertices = np.asarray(mesh.vertices, np.float64)[order]
+    implied = np.concatenate([vmap[np.asarray(mesh.disc_edges, np.int64).reshape(-1, 2)],
+                              vmap[np.asarray(mesh.curve_endpoints, np.int64).reshape(-1, 2)]])
+    extra = _derived_constraints(vertices, faces, implied, mesh.domain)
+    if extra is None:
+        return None
+    M = 2**bits - 1
+    best = None
+    for shift in range(1, bits):
+        on = _lattice(q, bits, shift)
+        coarse = (q[on] + (1 << shift) - 1) >> shift  # M -> 2**(bits - shift), multiples of 2**shift -> themselves
+        rf, cost_f = _point_set_cost(q[~on], M + 1)
+        rc, cost_c = _point_set_cost(coarse, (1 << (bits - shift)) + 1)
+        if best is None or cost_f + cost_c < best[0]:
+            best = cost_f + cost_c, shift, on, coarse, rf, rc
+    _, shift, on, coarse, rf, rc = best
+    w = _BitWriter()
+    _write_points(w, q[~on], M + 1, rf)
+    _write_points(w, coarse, (1 << (bits - shift)) + 1, rc)
+    for i, j in extra.tolist():
+        w.truncated(i, V)
+        w.truncated(j, V)
+    head = _MESH_HEAD.pack(DERIVED, bits, shift, V, T) + _DERIVED_HEAD.pack(int((~on).sum()), len(extra), rf, rc, 0)
+    return head + w.to_bytes()
+
+
+def _topology_edges(topo_data: bytes, info: dict) -> np.ndarray:
+    """The constraint edges TOPO implies, (E + C, 2) int64: its discontinuous edges and curve chords (spec §6.1)."""
+    E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
+    n = 12 * E + 17 * C + (32 * C if info["control_points"] == "f64" else 8 * (C + C3))
+    raw = decompress(topo_data[_TOPO_HEAD.size:], n, "TOPO")
+    edges = np.frombuffer(raw, "<u4", 2 * E, 0).reshape(E, 2).astype(np.int64)
+    ends = np.frombuffer(raw, "<u4", 2 * C, 12 * E + 4 * C).reshape(C, 2).astype(np.int64)
+    return np.concatenate([edges, ends])
+
+
+def _decode_derived(payload: bytes, info: dict, topo_data: bytes, domain) -> tuple[np.ndarray, np.ndarray]:
+    """Derived payload -> canonical grid points (V, 2) int64 and faces (T, 3) int64 (spec §6.1, encoding 2)."""
+    V, T, bits, shift = info["vertices"], info["triangles"], info["bits"], info["shift"]
+    if len(payload) < _DERIVED_HEAD.size:
+        raise FormatError("MESH: derived payload shorter than its fixed fields")
+    n_fine, K, rf, rc, reserved = _DERIVED_HEAD.unpack_from(payload)
+    if reserved or n_fine > V or rf > _MAX_RICE or rc > _MAX_RICE or K > 3 * V:
+        raise FormatError(f"MESH: derived counts or parameters out of range ({n_fine} fine vertices, {K} edges, "
+                          f"Rice {rf}/{rc})")
+    if len(payload) - _DERIVED_HEAD.size < (V + 7) // 8:  # every vertex takes at least a bit: bounds the work
+        raise FormatError("MESH: derived vertex stream truncated")
+    M = 2**bits - 1
+    reader = _BitReader(payload[_DERIVED_HEAD.size:])
+    fine = _read_points(reader, n_fine, M + 1, rf)
+    coarse = np.minimum(_read_points(reader, V - n_fine, (1 << (bits - shift)) + 1, rc) << shift, M)
+    extra = np.array([[reader.truncated(V), reader.truncated(V)] for _ in range(K)], np.int64).reshape(K, 2)
+    reader.finish()
+    q = np.concatenate([fine, coarse])
+    order = _vertex_order(q)
+    if order is None:
+        raise FormatError("MESH: two vertices coincide")
+    q = q[order]
+    constraints = np.concatenate([_topology_edges(topo_data, info), extra])
+    if len(constraints) and (constraints.max() >= V or np.any(constraints[:, 0] == constraints[:, 1])):
+        raise FormatError("MESH/TOPO: a constraint edge has an invalid or repeated vertex")
+    vertices = _denormalise(q / float(M), domain)
+    try:
+        faces = _derived_faces(vertices, constraints, domain)
+    except MeshError as exc:
+        raise FormatError(f"MESH: the derived triangulation fails ({exc})") from None
+    if len(faces) != T:
+        raise FormatError(f"MESH: the derived triangulation has {len(faces)} triangles, the chunk declares {T}")
+    if len(_not_strictly_delaunay(vertices, faces, _edge_keys(constraints, V))):
+        raise FormatError("MESH: the derived triangulation is not unique (four points on one circle)")
+    return q, faces
+
+
 # ----------------------------------------------------------------------------------------------- decoding
 def mesh_info(mesh_data: bytes, topo_data: bytes) -> dict:
     """Counts and encodings from the fixed-size prefixes of MESH and TOPO chunk data (nothing decoded)."""
     if len(mesh_data) < _MESH_HEAD.size or len(topo_data) < _TOPO_HEAD.size:
         raise FormatError("MESH/TOPO: chunk shorter than its fixed fields")
-    enc, bits, reserved, V, T = _MESH_HEAD.unpack_from(mesh_data)
+    enc, bits, shift, V, T = _MESH_HEAD.unpack_from(mesh_data)
     E, C, C3, cp_format = _TOPO_HEAD.unpack_from(topo_data)
-    if reserved or topo_data[13:16] != b"\0\0\0":
+    if shift and enc != DERIVED or topo_data[13:16] != b"\0\0\0":
         raise FormatError("MESH/TOPO: reserved field is not zero")
-    if enc == DRACO and not 1 <= bits <= MAX_MESH_BITS or enc == RAW and bits != 0 or enc not in (DRACO, RAW):
-        raise FormatError(f"MESH: invalid encoding {enc} with {bits} bits")
+    if (enc == DRACO and not 1 <= bits <= MAX_MESH_BITS or enc == RAW and bits != 0
+            or enc == DERIVED and not 1 <= shift < bits <= MAX_MESH_BITS or enc not in (DRACO, RAW, DERIVED)):
+        raise FormatError(f"MESH: invalid encoding {enc} with {bits} bits" + (f", lattice shift {shift}" if shift else ""))
     if not (3 <= V <= MAX_VERTICES and 1 <= T <= MAX_TRIANGLES):
         raise FormatError(f"MESH: {V} vertices / {T} triangles outside the limits")
     if E > MAX_DISC_EDGES or C > T or C3 > C or cp_format not in (_CP_I32, _CP_F64):
         raise FormatError(f"TOPO: invalid counts E={E} C={C} C3={C3} or control-point format {cp_format}")
-    return {"encoding": "draco" if enc == DRACO else "raw", "bits": bits, "vertices": V, "triangles": T,
+    return {"encoding": ("draco", "raw", "derived")[enc], "bits": bits, "shift": shift, "vertices": V, "triangles": T,
             "disc_edges": E, "curves": C, "cubic_curves": C3,
             "control_points": "i32-barycentric" if cp_format == _CP_I32 else "f64"}
 
@@ -381,8 +692,9 @@ def decode_mesh(mesh_data: bytes, topo_data: bytes, domain, *, full_validate: bo
     info = mesh_info(mesh_data, topo_data)
     V, T, bits = info["vertices"], info["triangles"], info["bits"]
     payload = mesh_data[_MESH_HEAD.size:]
-    if info["encoding"] == "draco":
-        q, triangles = _decode_draco(payload, V, T, bits)
+    if info["encoding"] in ("draco", "derived"):
+        q, triangles = (_decode_draco(payload, V, T, bits) if info["encoding"] == "draco"
+                        else _decode_derived(payload, info, topo_data, domain))
         vertices = _denormalise(q / float(2**bits - 1), domain)
     else:
         raw = decompress(payload, 16 * V + 12 * T, "MESH")
@@ -417,8 +729,9 @@ def _same(a: Mesh, b: Mesh) -> bool:
     ) and np.array_equal(np.asarray(a.curve_degree, np.int64), np.asarray(b.curve_degree, np.int64))
 
 
-def _try(mesh: Mesh, step: int | None, level: int, validate: bool = True) -> tuple[tuple[bytes, bytes], Mesh] | None:
-    enc = encode_mesh(mesh, step, level=level)
+def _try(mesh: Mesh, step: int | None, level: int, validate: bool = True,
+         derived: bool = False) -> tuple[tuple[bytes, bytes], Mesh] | None:
+    enc = encode_mesh(mesh, step, level=level, derived=derived)
     if enc is None:
         return None
     try:
@@ -447,18 +760,36 @@ def _on_grid(mesh: Mesh, bits: int) -> bool:
     return np.array_equal(_denormalise(q / float(2**bits - 1), mesh.domain), mesh.vertices)
 
 
-def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False) -> tuple[bytes, bytes]:
+def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False,
+                        coding: str = "derived") -> tuple[bytes, bytes]:
     """(MESH, TOPO) chunk data that decode to ``mesh`` bit for bit, order included.
 
     ``mesh`` should be ``roundtrip_mesh(m, bits)``: the file then reproduces exactly the geometry and order
-    the features were fitted on. Tries, smallest first, the Draco precisions whose grid holds every vertex
+    the features were fitted on. ``coding`` "derived" (``MESH_CODINGS``) first tries the derived encoding on the
+    coarsest grid (2 bits or more) that holds every vertex, taking it when it is no larger than Draco's and decodes to
+    ``mesh``.
+    Otherwise tries, smallest first, the Draco precisions whose grid holds every vertex
     exactly (grids nest: 10 bits lie on the 20-bit grid) and takes the first under which ``mesh`` decodes to
     itself; any other valid mesh is stored with the lossless raw encoding. Raises ``MeshError`` when
     ``mesh`` is invalid. ``validated``: ``mesh`` passed ``Mesh.validate`` already (``roundtrip_mesh`` checked it),
     so an encoding that decodes to exactly ``mesh`` needs no second check.
     """
-    for step in [b for b in range(1, MAX_MESH_BITS + 1) if _on_grid(mesh, b)] + [None]:
+    if coding not in MESH_CODINGS:
+        raise ValueError(f"mesh coding must be one of {MESH_CODINGS}, got {coding!r}")
+    grids = [b for b in range(1, MAX_MESH_BITS + 1) if _on_grid(mesh, b)]
+    derived = None
+    coarsest = next((b for b in grids if b >= 2), None)
+    if coding == "derived" and coarsest is not None:
+        res = _try(mesh, coarsest, level, validate=not validated, derived=True)
+        # The derived encoding is kept only when decoding it gives back ``mesh`` bit for bit. It cannot when the
+        # mesh is off the grid, when a vertex lies on (or within the CDT's tolerance of) a constraint edge so the
+        # triangulation would split it, or when no set of extra edges makes ``mesh`` the unique CDT within
+        # _DERIVED_ROUNDS tries: then Draco (or raw) below, which store the connectivity itself.
+        derived = res[0] if res is not None and _same(res[1], mesh) else None
+    for step in grids + [None]:
         res = _try(mesh, step, level, validate=not validated)
         if res is not None and _same(res[1], mesh):
+            if derived is not None and len(derived[0]) <= len(res[0][0]):
+                return derived
             return res[0]
     raise MeshError("mesh cannot be stored: it is invalid (see Mesh.validate)")

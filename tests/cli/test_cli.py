@@ -21,6 +21,7 @@ from dfc.metrics import psnr
 from dfc.render import render
 
 from ..conftest import SAMPLES
+from ..io.test_container import join, split
 
 STEPS = "150"
 
@@ -73,8 +74,10 @@ def test_encode_summary_and_stats(encoded, capsys):
     assert sum(s["chunk_bytes"].values()) + 16 == s["file_bytes"]
     assert s["channels"] == ["R", "G", "B"] and s["time_axis"] is None
     assert s["value_transform"] == "affine" and len(s["value_map"]["offset"]) == 3  # fitted in normalised units
+    assert s["mesh"]["encoding"] == "derived" and s["mesh"]["free_vertex_bits"] < s["mesh"]["bits"] == 20
     code, out, _ = run(["stats", path], capsys)
     assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out and "offset + scale" in out
+    assert "triangles derived" in out
 
 
 def test_decode_matches_reported_psnr_and_is_deterministic(encoded, tmp_path, capsys):
@@ -153,6 +156,11 @@ def test_input_errors_are_one_line(encoded, tmp_path, capsys):
     bad = tmp_path / "broken.dfield"
     bad.write_bytes(path.read_bytes()[:-40])
     cases.append((["decode", bad, "-o", tmp_path / "o1.exr"], "dfc: error:"))
+    chunks = split(path.read_bytes())
+    assert chunks[1][0] == b"MESH" and chunks[1][1][0] == 2  # the derived encoding, CRCs recomputed below
+    chunks[1][1] = chunks[1][1][:-2]
+    (tmp_path / "mesh.dfield").write_bytes(join(chunks))
+    cases.append((["stats", tmp_path / "mesh.dfield"], "MESH: derived vertex stream truncated"))
     nan = read_image(SAMPLES / "sample.exr").pixels.copy()
     nan[3, 5, 1] = np.nan
     write_exr(tmp_path / "nan.exr", nan, ["R", "G", "B"], half=False)

@@ -4,8 +4,10 @@ valid/tiny.dfield is a file of version 1.0 (FEAT, MLPW) and stays as it was writ
 decoding, so this script only reads it (and writes it, from the 1.0 chunk encodings, when it is missing).
 valid/tiny_coded.dfield holds the same contents with the 1.1 chunks (FEAC, MLPQ) and is frozen the same way (a
 file of content version 1.1). valid/tiny_units.dfield (content 1.2) holds them with value_transform "affine": an
-offset and scale per channel (``VALUE_MAP``). Each valid file has a .json with the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on valid/tiny_filter.dfield (content 1.2) adds the
-header keys pixel_size and pixel_filter.
+offset and scale per channel (``VALUE_MAP``); valid/tiny_filter.dfield (content 1.2) adds the header keys
+pixel_size and pixel_filter; both are frozen the same way. valid/tiny_derived.dfield (content 1.3) stores the mesh
+with the derived encoding (MESH encoding 2: the triangles rebuilt by the decoder). Each valid file has a .json with
+the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
 a deliberate format change (update the spec's change log)."""
 
 import json
@@ -49,15 +51,24 @@ def main():
         _write_valid("tiny_coded", encode_dfield(c, compression_level=19, feature_coding="predicted", weight_bits=6)[0])
     coded = frozen_coded.read_bytes()
     units = replace(c, header={**c.header, "value_transform": "affine", **VALUE_MAP})
-    units_blob = encode_dfield(units, compression_level=19, feature_coding="predicted", weight_bits=6)[0]
-    _write_valid("tiny_units", units_blob)
+    frozen_units = HERE / "valid" / "tiny_units.dfield"
+    if not frozen_units.exists():
+        _write_valid("tiny_units", encode_dfield(units, compression_level=19, feature_coding="predicted",
+                                                 weight_bits=6, mesh_coding="draco")[0])
+    units_blob = frozen_units.read_bytes()
     zero_scale = split(units_blob)
     head = json.loads(zstandard.ZstdDecompressor().decompress(zero_scale[0][1]))
     zero_scale[0][1] = compress(json.dumps({**head, "value_scale": [1e-3, 0.0, 4.0]}).encode(), 19)
     x0, y0, x1, y1 = c.header["domain"]
     filtered = replace(c, header={**c.header, "pixel_size": [(x1 - x0) / 16, (y1 - y0) / 16],
                                   "pixel_filter": "gaussian:0.5"})
-    _write_valid("tiny_filter", encode_dfield(filtered, compression_level=19, weight_bits=6)[0])
+    if not (HERE / "valid" / "tiny_filter.dfield").exists():
+        _write_valid("tiny_filter", encode_dfield(filtered, compression_level=19, weight_bits=6, mesh_coding="draco")[0])
+    derived = encode_dfield(c, compression_level=19, weight_bits=6, mesh_coding="derived")[0]
+    assert split(derived)[1][1][0] == 2, "the tiny mesh is no longer stored with the derived encoding"
+    _write_valid("tiny_derived", derived)
+    truncated_mesh = [list(x) for x in split(derived)]
+    truncated_mesh[1][1] = truncated_mesh[1][1][:-2]
     unknown = [list(x) for x in split(coded)]
     head = {**decode_dfield(coded).header, "pixel_filter": "lanczos"}
     unknown[0][1] = compress(json.dumps(head, separators=(",", ":")).encode(), 19)
@@ -88,6 +99,7 @@ def main():
         "mlpq_integer_out_of_range": join(out_of_range),
         "value_scale_not_positive": join(zero_scale),
         "pixel_filter_unknown": join(unknown),
+        "derived_mesh_truncated": join(truncated_mesh),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)

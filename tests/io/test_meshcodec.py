@@ -1,12 +1,23 @@
 """MESH/TOPO chunk encoding: quantisation, canonical order, fallback ladder, hostile payloads."""
 
+import hashlib
+import os
+import re
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import zstandard
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
 from scipy.spatial import Delaunay
 
 from dfc.errors import FormatError, MeshError
 from dfc.geometry.mesh import Mesh
+from dfc.geometry.triangulate import triangulate
 from dfc.io.meshcodec import (
     MAX_MESH_BITS,
     compress,
@@ -17,6 +28,7 @@ from dfc.io.meshcodec import (
     mesh_info,
     roundtrip_mesh,
 )
+from tests.geometry.test_triangulate import curve_sets, make_curves
 
 
 def make_mesh(n_interior=60, n_side=6, n_disc=8, n_curves=10, domain=(0.0, 0.0, 64.0, 32.0), seed=0) -> Mesh:
@@ -125,16 +137,17 @@ def test_canonical_order_is_a_fixed_point(mesh):
     for f in ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points"):
         assert np.array_equal(getattr(out, f), getattr(again, f)), f
     assert np.all(np.diff(out.vertices[:, 0]) >= 0)
-    m, t = encode_roundtripped(out)
+    m, t = encode_roundtripped(out, coding="draco")
     assert mesh_info(m, t)["encoding"] == "draco" and mesh_info(m, t)["bits"] == 12
 
 
 def test_writer_finds_the_grid_of_a_decoder_view(mesh):
     out = roundtrip_mesh(mesh, 10)
-    m, t = encode_roundtripped(out)
-    assert mesh_info(m, t)["encoding"] == "draco" and 10 <= mesh_info(m, t)["bits"] < 16
-    again = decode_mesh(m, t, mesh.domain)
-    assert np.array_equal(again.vertices, out.vertices) and np.array_equal(again.triangles, out.triangles)
+    for coding, encoding in (("draco", "draco"), ("derived", "derived")):
+        m, t = encode_roundtripped(out, coding=coding)
+        assert mesh_info(m, t)["encoding"] == encoding and 10 <= mesh_info(m, t)["bits"] < 16
+        again = decode_mesh(m, t, mesh.domain)
+        assert np.array_equal(again.vertices, out.vertices) and np.array_equal(again.triangles, out.triangles)
 
 
 def test_a_mesh_that_is_not_a_decoder_view_is_written_losslessly(mesh):
@@ -213,3 +226,119 @@ def test_zstd_frames_are_checked_before_decompressing():
         decompress(frame[:-3], 1000, "T")
     with pytest.raises(FormatError):
         decompress(b"", 0, "T")
+
+
+# ----------------------------------------------------------------------------------------------- derived encoding
+def _derived(mesh: Mesh, bits: int):
+    """(MESH, TOPO) of ``mesh`` in the derived encoding (asserted chosen) and the mesh they decode to."""
+    m, t = encode_roundtripped(mesh)
+    assert mesh_info(m, t)["encoding"] == "derived"
+    return m, t, decode_mesh(m, t, mesh.domain)
+
+
+def _assert_same_mesh(a: Mesh, b: Mesh):
+    for f in ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points",
+              "curve_degree", "disc_edge_piece", "curve_piece"):
+        x, y = np.asarray(getattr(a, f)), np.asarray(getattr(b, f))
+        assert x.shape == y.shape and np.array_equal(x, y), f
+
+
+@pytest.fixture(scope="module")
+def lattice_mesh():
+    """A triangulated curve set with its free vertices on the lattice of a 16-bit grid, as the encoder fits on it."""
+    curves = make_curves([(3, [(0.2, 0.2), (1.0, 2.9), (3.0, -1.0), (3.9, 2.8)]), (1, [(0.5, 2.5), (3.5, 0.4)]),
+                          (2, [(0.3, 0.5), (2.0, 1.2), (3.8, 0.3)])])
+    return roundtrip_mesh(triangulate(curves, max_triangles=160, lattice_bits=16), 16)
+
+
+def test_derived_encoding_decodes_to_the_encoders_mesh_and_is_smaller(lattice_mesh):
+    m, t, out = _derived(lattice_mesh, 16)
+    _assert_same_mesh(out, lattice_mesh)
+    info = mesh_info(m, t)
+    assert info["bits"] == 16 and 1 <= info["shift"] < 16
+    assert len(m) < 0.6 * len(encode_mesh(lattice_mesh, 16)[0])  # Draco of the same mesh
+    again = decode_mesh(m, t, lattice_mesh.domain)
+    _assert_same_mesh(again, out)
+
+
+def test_derived_decoding_is_the_same_in_a_fresh_process(lattice_mesh, tmp_path):
+    m, t, out = _derived(lattice_mesh, 16)
+    (tmp_path / "mesh.bin").write_bytes(m)
+    (tmp_path / "topo.bin").write_bytes(t)
+    code = ("import hashlib, sys, numpy as np; from dfc.io.meshcodec import decode_mesh; "
+            f"d = decode_mesh(open(sys.argv[1], 'rb').read(), open(sys.argv[2], 'rb').read(), {tuple(out.domain)}); "
+            "print(hashlib.sha256(np.ascontiguousarray(d.vertices).tobytes() + d.triangles.astype('<i8').tobytes())"
+            ".hexdigest())")
+    root = Path(__file__).parents[2]
+    res = subprocess.run([sys.executable, "-c", code, str(tmp_path / "mesh.bin"), str(tmp_path / "topo.bin")],
+                         capture_output=True, text=True, check=True, env={**os.environ, "PYTHONPATH": str(root)})
+    here = hashlib.sha256(np.ascontiguousarray(out.vertices).tobytes() + out.triangles.astype("<i8").tobytes())
+    assert res.stdout.strip() == here.hexdigest()
+
+
+def test_lattice_snaps_only_the_free_vertices(lattice_mesh):
+    curves = make_curves([(1, [(0.5, 2.5), (3.5, 0.4)])])
+    plain = roundtrip_mesh(triangulate(curves, max_triangles=160), 16)
+    snapped = roundtrip_mesh(triangulate(curves, max_triangles=160, lattice_bits=16), 16)
+    q = np.rint(snapped.vertices / np.array([4.0, 3.0]) * 65535).astype(np.int64)
+    on_curve = np.zeros(snapped.n_vertices, bool)
+    on_curve[snapped.disc_edges.ravel()] = True
+    lattice = np.all((q % 2 ** mesh_info(*encode_roundtripped(snapped))["shift"] == 0) | (q == 65535), axis=1)
+    assert lattice[~on_curve].all() and not lattice[on_curve].all()
+    assert abs(snapped.n_triangles - plain.n_triangles) <= 0.1 * plain.n_triangles
+    snapped.validate()
+
+
+def test_cocircular_vertices_are_resolved_by_stored_edges():
+    """A regular grid: every square's four corners lie on one circle, so a CDT could take either diagonal; the
+    encoder stores the mesh's diagonals as constraint edges and the decoder reproduces them."""
+    n = 6
+    g = np.linspace(0.0, 1.0, n)
+    v = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2) * [5.0, 5.0]
+    k = np.arange(n * n).reshape(n, n)
+    a, b, c, d = k[:-1, :-1].ravel(), k[1:, :-1].ravel(), k[1:, 1:].ravel(), k[:-1, 1:].ravel()
+    alt = (np.add.outer(np.arange(n - 1), np.arange(n - 1)) % 2 == 0).ravel()  # both diagonal directions
+    t = np.concatenate([np.where(alt[:, None], np.stack([a, b, c], 1), np.stack([a, b, d], 1)),
+                        np.where(alt[:, None], np.stack([a, c, d], 1), np.stack([b, c, d], 1))])
+    z = np.zeros((0, 2), np.int64)
+    mesh = Mesh((0.0, 0.0, 5.0, 5.0), v, t, z, np.zeros(0, np.int64), z, np.zeros((0, 4, 2)), np.zeros(0, np.int8),
+                np.zeros(0, np.int64), np.zeros(0, np.int64))
+    mesh = roundtrip_mesh(mesh, 12)
+    m, _, out = _derived(mesh, 12)
+    _assert_same_mesh(out, mesh)
+    assert struct.unpack_from("<I", m, 16)[0] >= (n - 1) ** 2  # a stored edge per square at least
+
+
+def test_hostile_derived_payloads_raise_format_error(lattice_mesh):
+    m, t, _ = _derived(lattice_mesh, 16)
+    domain = lattice_mesh.domain
+    bad = [m[:-1], m + b"\0", m[:12] + m[12:20] + b"\x40\0\0\0" + m[24:], m[:2] + b"\0\0" + m[4:],
+           m[:2] + bytes([16, 0]) + m[4:], m[:12] + struct.pack("<I", lattice_mesh.n_vertices + 1) + m[16:],
+           m[:12] + m[12:20] + bytes([25]) + m[21:], m[:8] + struct.pack("<I", lattice_mesh.n_triangles + 1)]
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        flipped = bytearray(m)
+        flipped[int(rng.integers(24, len(m)))] ^= 1 << int(rng.integers(8))
+        bad.append(bytes(flipped))
+    for data in bad:
+        try:
+            out = decode_mesh(data, t, domain)
+        except FormatError:
+            continue
+        out.validate()  # a flip that still decodes gives a valid mesh (another one)
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(curves=curve_sets(), density=st.sampled_from([None, 0.5]))
+def test_fuzzed_curves_derived_mesh_is_the_encoders(curves, density):
+    try:
+        mesh = triangulate(curves, max_area=density, max_triangles=300, lattice_bits=16)
+    except MeshError as e:  # the known limits of test_fuzzed_curves_mesh_validate_and_keep_every_piece
+        assume(not re.search("tangent at their shared endpoint|cannot separate|would be split|need", str(e)))
+        raise
+    view = roundtrip_mesh(mesh, 16)
+    m, t = encode_roundtripped(view)
+    out = decode_mesh(m, t, view.domain)
+    _assert_same_mesh(out, view)
+    out.validate()
+    assert mesh_info(m, t)["encoding"] in ("derived", "raw")  # raw: the 16-bit grid could not hold the mesh
