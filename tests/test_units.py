@@ -172,3 +172,11 @@ def test_hdr_is_a_peak_not_a_unit():
     header = loads(blob).header
     assert report.tonemapped and header["value_transform"] == "log" and "value_offset" not in header
     assert "log space" in report.units
+
+
+def test_hdr_summary_says_when_values_below_minus_one_keep_the_fit_out_of_log_space():
+    """log(1 + v) needs v > -1: HDR light with such values (a wide-gamut EXR's negative channels) is fitted on its
+    values, and the summary says so rather than claiming log space."""
+    assert "log space as HDR" in describe(-0.5, 18.0, None)
+    line = describe(-1.3, 18.0, None)
+    assert "no log space" in line and "fitted in log space" not in line

@@ -101,6 +101,8 @@ def describe(lo: float, hi: float, value_map: ValueMap | None, dtype=np.float32)
     magnitude = max(abs(lo), abs(hi))
     digits = 6 if hi == lo else max(6, math.ceil(math.log10(max(magnitude, 1e-300) / (hi - lo))) + 4)
     text = f"data range [{lo:.{digits}g}, {hi:.{digits}g}]"
+    if value_map is None and lo <= -1.0:  # dfc.train.fit._model_for: log(1 + v) needs v > -1
+        return text + "; fitted on its values as HDR light (values ≤ −1: no log space; tone-mapped quality)"
     if value_map is None:
         return text + "; fitted in log space as HDR light (log(1 + v), tone-mapped quality)"
     if hi == lo:
