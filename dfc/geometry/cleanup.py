@@ -38,6 +38,8 @@ _OVERLAP_SIN = 1e-3
 """Intersections where the tangents are closer than this (sine) to parallel are checked for overlap."""
 _OVERLAP_STEP = 0.05
 """Parameter offset at which an overlap is probed on both sides of a near-parallel intersection."""
+_EXACT_SIN = 1e-6
+"""The pass for exact crossings after pinning skips contacts closer than this (sine) to parallel: overlaps."""
 _MAX_ROUNDS = 64
 """Bound on the halving rounds (turning, shared chords); each round at least halves the offending pieces."""
 
@@ -285,7 +287,8 @@ def _coincide(cp_a, s, cp_b, t, snap: float) -> np.ndarray:
 def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float, exact: float | None = None):
     """Intersections of different pieces and self-intersections of cubics: (piece, t, point) arrays.
 
-    ``exact``: only points where the pieces meet within this distance (true crossings), near-parallel ones included."""
+    ``exact``: only points where the pieces meet within this distance and cross at a sine above ``_EXACT_SIN`` (true
+    crossings, near-parallel ones included; no overlap check), and no self-intersections."""
     i, j = _segment_pairs(seg, 0.5 * snap, diag)
     u, v, gap = _closest_on_segments(seg.a[i], seg.b[i], seg.a[j], seg.b[j])
     near = gap <= seg.err[i] + seg.err[j] + snap
@@ -308,13 +311,16 @@ def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float, exact: floa
     ta, tb = bz.derivative(p.cp[pa], s), bz.derivative(p.cp[pb], t)
     with np.errstate(divide="ignore", invalid="ignore"):
         sine = np.abs(cross(ta, tb)) / (np.hypot(*ta.T) * np.hypot(*tb.T))
-    check = ~(sine > _OVERLAP_SIN) & (exact is None)
+    check = ~(sine > _OVERLAP_SIN)
     drop = np.zeros(len(s), dtype=bool)
-    drop[check] = _coincide(p.cp[pa[check]], s[check], p.cp[pb[check]], t[check], snap)
+    if exact is None:
+        drop[check] = _coincide(p.cp[pa[check]], s[check], p.cp[pb[check]], t[check], snap)
+    else:
+        drop = ~(sine > _EXACT_SIN)
     pa, pb, s, t = pa[~drop], pb[~drop], s[~drop], t[~drop]
     point = 0.5 * (bz.evaluate(p.cp[pa], s) + bz.evaluate(p.cp[pb], t))
     selfx = bz.self_intersections(p.cp)
-    loop = np.nonzero(np.isfinite(selfx[:, 0]) & (p.deg == 3))[0]
+    loop = np.nonzero(np.isfinite(selfx[:, 0]) & (p.deg == 3) & (exact is None))[0]
     loop_pt = bz.evaluate(p.cp[loop], selfx[loop, 0])
     piece = np.concatenate([pa, pb, loop, loop])
     param = np.concatenate([s, t, selfx[loop, 0], selfx[loop, 1]])
@@ -375,7 +381,8 @@ def _t_junctions(p: _Pieces, seg: _Segments, verts: np.ndarray, snap: float, dia
 
 def _split_at_crossings(p: _Pieces, domain, snap: float, diag: float,
                         exact: float | None = None) -> tuple[_Pieces, np.ndarray]:
-    """Split pieces at crossings and T-junctions and give every end point a vertex id (``exact``: see ``_crossings``)."""
+    """Split pieces at crossings and T-junctions and give every end point a vertex id (``exact``: exact crossings only,
+    see ``_crossings``, and no T-junctions)."""
     seg = _segments(p.cp, p.deg, diag)
     piece, param, points = _crossings(p, seg, snap, diag, exact)
     ends = np.concatenate([p.cp[:, 0], p.cp[:, 3]])
@@ -385,7 +392,7 @@ def _split_at_crossings(p: _Pieces, domain, snap: float, diag: float,
     p = replace(p, ev=np.stack([labels[:n], labels[n:2 * n]], axis=1))
     vid = labels[2 * n:]
     own = (vid == p.ev[piece, 0]) | (vid == p.ev[piece, 1])
-    tj_piece, tj_t, tj_vid = _t_junctions(p, seg, verts, snap, diag)
+    tj_piece, tj_t, tj_vid = _t_junctions(p, seg, verts, snap, diag) if exact is None else (piece[:0], param[:0], vid[:0])
     piece = np.concatenate([piece[~own], tj_piece])
     param = np.concatenate([param[~own], tj_t])
     vid = np.concatenate([vid[~own], tj_vid])
