@@ -42,8 +42,8 @@ class MLP(nn.Module):
         mods: list[nn.Module] = []
         for i in range(len(widths) - 1):
             mods.append(nn.Linear(widths[i], widths[i + 1]))
-            if i < len(widths) - 2:
-                mods.append(ACTIVATIONS[activation]())
+            if i < len(widths) - 2:  # ReLU in place: the same values and gradients, one tensor fewer per layer
+                mods.append(nn.ReLU(inplace=True) if activation == "relu" else ACTIVATIONS[activation]())
         self.net = nn.Sequential(*mods)
 
     def get_out_dim(self) -> int:

@@ -5,7 +5,8 @@ Pixels near a discontinuity (``filtered``: those the kernel of a pixel it crosse
 ``dfc.pixel_filter.TRAIN_POINTS`` quadrature points, the lattice shifted at random per pixel (exact in
 expectation); every other pixel at one point — its centre, or for ``box`` a uniformly jittered point in it, as
 the unfiltered fit samples: there the field is smooth and a point stands for the filtered value to first order.
-``sets`` draws of all points are located once (``query``) and reused in turn, one per epoch.
+``sets`` draws of all points are located once (``query``) and reused in turn, one per epoch; each epoch's point
+indices are laid out once, in its order, so that a step only slices them and gathers its points.
 
 A batch is ``(xy (N, 2) float64, target (B, C) float32, PixelWeights)``: ``dfc.train.losses.DataLoss`` sums the
 model's values at the N points into the B pixels.
@@ -79,21 +80,38 @@ class _FilteredPixels:
                 parts = [query(self.xy[s:s + QUERY_CHUNK]) for s in range(0, len(self.xy), QUERY_CHUNK)]
             self.cache = (torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
         self.sets = sets
+        self.laid_out = None  # (epoch, its pixels, at, pixel_of, bounds): ``_prepare``
+
+    def _prepare(self, order: Tensor, epoch: int) -> None:
+        """Index the points of an epoch once: its pixels in ``order`` (n,) and, for the k-th point of the epoch,
+        its index in the located sets (``at``, of set ``(epoch - 1) % sets``) and the position of its pixel in
+        ``order`` (``pixel_of``); ``bounds`` (n + 1,) the first point of each position (a NumPy array: slicing by
+        it needs no device round trip)."""
+        order = order.cpu()
+        count = self.count.index_select(0, order)
+        ends = torch.cumsum(count, 0)
+        at = (torch.repeat_interleave(self.start.index_select(0, order) - (ends - count), count)
+              + ((epoch - 1) % self.sets) * self.total + torch.arange(self.total))
+        device = self.xy.device
+        self.laid_out = (epoch, order.to(device), at.to(device),
+                      torch.repeat_interleave(torch.arange(len(order)), count).to(device),
+                      np.concatenate([[0], ends.numpy()]))
 
     def __call__(self, step: int, generator: torch.Generator):
-        parts = self.epochs.take(self.batch_size, generator)
-        pixel = torch.cat([order for order, _ in parts]).cpu()
-        epoch = torch.cat([torch.full((len(order),), e, dtype=torch.int64) for order, e in parts])
-        count = self.count.index_select(0, pixel)
-        row = torch.repeat_interleave(torch.arange(len(pixel)), count)
-        first = torch.repeat_interleave(torch.cumsum(count, 0) - count, count)
-        at = (torch.repeat_interleave(self.start.index_select(0, pixel) + ((epoch - 1) % self.sets) * self.total,
-                                      count) + torch.arange(len(row)) - first)
-        device = self.xy.device
-        at, row = at.to(device), row.to(device)
+        ats, rows, pixels, taken = [], [], [], 0
+        for order, a, b, epoch in self.epochs.runs(self.batch_size, generator):
+            if self.laid_out is None or self.laid_out[0] != epoch:
+                self._prepare(order, epoch)
+            _, pixel_order, at, pixel_of, bounds = self.laid_out
+            lo, hi = int(bounds[a]), int(bounds[b])
+            ats.append(at[lo:hi])
+            rows.append(pixel_of[lo:hi] + (taken - a))
+            pixels.append(pixel_order[a:b])
+            taken += b - a
+        at, row, pixel = (parts[0] if len(parts) == 1 else torch.cat(parts) for parts in (ats, rows, pixels))
         # index_select: on the CPU about 3 times as fast as indexing with a tensor
         query = None if self.cache is None else (self.cache[0].index_select(0, at), self.cache[1].index_select(0, at))
-        return (self.xy.index_select(0, at), self.values.index_select(0, pixel.to(device)),
+        return (self.xy.index_select(0, at), self.values.index_select(0, pixel),
                 PixelWeights(row, self.weight.index_select(0, at), query))
 
 

@@ -34,13 +34,18 @@ class _Epochs:
 
     def take(self, count: int, generator: torch.Generator) -> list[tuple[Tensor, int]]:
         """The next ``count`` indices, as runs (indices (k,) int64, 1-based epoch they belong to)."""
+        return [(order[a:b], epoch) for order, a, b, epoch in self.runs(count, generator)]
+
+    def runs(self, count: int, generator: torch.Generator) -> list[tuple[Tensor, int, int, int]]:
+        """The next ``count`` indices, as runs (the epoch's whole order (n,) int64, the run's start and stop in it,
+        1-based epoch): ``take`` with the positions in the epoch, for samplers that prepare each epoch once."""
         parts = []
         while count:
             if self.pos == len(self.order):
                 self.order, self.pos = torch.randperm(self.n, generator=generator, device=generator.device), 0
                 self.epoch += 1
             k = min(count, self.n - self.pos)
-            parts.append((self.order[self.pos : self.pos + k], self.epoch))
+            parts.append((self.order, self.pos, self.pos + k, self.epoch))
             self.pos += k
             count -= k
         return parts

@@ -34,6 +34,23 @@ def test_mlp_shapes(layers, activation):
     assert sum(isinstance(mod, act) for mod in m.net) == layers
 
 
+@pytest.mark.parametrize("activation", ["relu", "tanh"])
+def test_mlp_values_and_gradients_are_those_of_the_plain_layers(activation):
+    """The in-place ReLU gives the values and gradients of the layers applied one after another."""
+    m = MLP(5, 3, hidden=16, layers=2, activation=activation)
+    act = torch.relu if activation == "relu" else torch.tanh
+    x = torch.randn(50, 5, requires_grad=True)
+    x_ref = x.detach().clone().requires_grad_(True)
+    lin = m.linears()
+    y_ref = lin[2](act(lin[1](act(lin[0](x_ref)))))
+    grads_ref = torch.autograd.grad(y_ref.square().sum(), [x_ref, *m.parameters()])
+    y = m(x)
+    grads = torch.autograd.grad(y.square().sum(), [x, *m.parameters()])
+    assert torch.equal(y, y_ref)
+    for a, b in zip(grads, grads_ref):
+        assert torch.equal(a, b)
+
+
 def test_mlp_rejects_bad_arguments():
     with pytest.raises(ValueError, match="activation"):
         MLP(2, 3, activation="gelu")

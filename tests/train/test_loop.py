@@ -27,6 +27,24 @@ def test_fit_is_deterministic(scene_mesh):
         assert na == nb and torch.equal(pa, pb), na
 
 
+def test_per_tensor_adam_equals_the_foreach_update(scene_mesh, monkeypatch):
+    """The CPU's per-tensor Adam (``FOREACH_DEVICES``) gives the foreach update's values to the bit."""
+    import dfc.train.loop as loop
+
+    image = scene_image(spp=1)
+
+    def run():
+        model = FieldModel(FeatureField(scene_mesh, seed=1), ["R", "G", "B"], hidden=16, seed=1)
+        fit(model, image_sampler(image, scene_mesh.domain, 256), steps=20, seed=2, qat_steps=5, decoder_lr=0.2,
+            final_lr=1e-3)
+        return model.state_dict()
+
+    per_tensor = run()
+    monkeypatch.setattr(loop, "FOREACH_DEVICES", ("cpu", "cuda"))
+    for (name, a), b in zip(per_tensor.items(), run().values()):
+        assert torch.equal(a, b), name
+
+
 def test_fit_reduces_loss_and_reports(scene_mesh):
     seen = []
     model = FieldModel(FeatureField(scene_mesh), ["R", "G", "B"])

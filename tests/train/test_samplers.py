@@ -38,3 +38,39 @@ def test_sampler_query_cache_and_exclusion(scene_mesh):
     torch.testing.assert_close(w, ref_w)
     with pytest.raises(ValueError, match="exclude"):
         image_sampler(image, scene_mesh.domain, 10, exclude=np.zeros((3, 3), bool))
+
+
+@pytest.mark.parametrize("batch_size", [23, 100])  # batches that straddle epochs; larger than an epoch
+def test_filtered_sampler_batches_cross_epochs(batch_size):
+    from dfc.pixel_filter import parse
+    from dfc.train.pixel_sampler import filtered_sampler
+
+    h, w, sets = 6, 7, 3
+    image = np.arange(h * w, dtype=np.float32).reshape(h, w, 1)
+    filtered = np.zeros((h, w), bool)
+    filtered[2:4, 1:5] = True
+
+    def query(xy):  # a stand-in for field.query: a function of the point alone
+        return (torch.floor(xy * 10).long(), xy.float())
+
+    sampler = filtered_sampler(image, (0.0, 0.0, float(w), float(h)), batch_size, parse("box:4"), filtered,
+                               query=query, sets=sets, seed=0)
+    gen = torch.Generator().manual_seed(0)
+    pixels, epoch_points = [], []
+    for step in range(6):
+        xy, target, pw = sampler(step, gen)
+        assert target.shape == (batch_size, 1)
+        torch.testing.assert_close(pw.query[0], query(xy)[0], rtol=0, atol=0)  # each point's own location
+        pixel = target[pw.row, 0].long()  # the pixel each point belongs to (the image holds its index)
+        assert torch.equal(torch.floor(xy[:, 0]).long(), pixel % w)  # each point in its pixel
+        assert torch.equal(torch.floor(xy[:, 1]).long(), pixel // w)
+        counts = torch.bincount(pw.row, minlength=batch_size)
+        np.testing.assert_array_equal(counts, np.where(filtered.ravel()[target[:, 0].long()], 16, 1))
+        np.testing.assert_allclose(torch.zeros(batch_size).index_add_(0, pw.row, pw.weight), 1.0, rtol=1e-6)
+        pixels.append(target[:, 0].long())
+        epoch_points.append(xy)
+    pixels = torch.cat(pixels)
+    n = h * w
+    for e in range(len(pixels) // n):  # every pixel once per epoch, a fresh order each
+        assert sorted(pixels[e * n:(e + 1) * n].tolist()) == list(range(n))
+    assert not torch.equal(pixels[:n], pixels[n:2 * n])
