@@ -38,6 +38,8 @@ _OVERLAP_SIN = 1e-3
 """Intersections where the tangents are closer than this (sine) to parallel are checked for overlap."""
 _OVERLAP_STEP = 0.05
 """Parameter offset at which an overlap is probed on both sides of a near-parallel intersection."""
+_EXACT_SIN = 1e-6
+"""The pass for exact crossings after pinning skips contacts closer than this (sine) to parallel: overlaps."""
 _MAX_ROUNDS = 64
 """Bound on the halving rounds (turning, shared chords); each round at least halves the offending pieces."""
 
@@ -78,6 +80,9 @@ def clean(curves: Curves, *, tol: Tolerances = tol) -> Curves:
     p = _clip(p, curves.domain, snap)
     if len(p):
         p, verts = _split_at_crossings(p, curves.domain, snap, diag)
+        # pinning moved end points by up to ``snap``: where two pieces touch tangentially, that turns one piece a little
+        # and it can cross the other again near the contact, closer than ``snap`` to it (unseen by the pass above)
+        p, verts = _split_at_crossings(p, curves.domain, snap, diag, exact=tol.touch_rel * diag)
         p = _dedupe(_demote_straight(p, snap), snap)
         p, verts = _split_shapes(p, verts, snap, min_size)
         p, verts = _unshare_chords(p, verts, snap)
@@ -279,8 +284,11 @@ def _coincide(cp_a, s, cp_b, t, snap: float) -> np.ndarray:
     return out
 
 
-def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float):
-    """Intersections of different pieces and self-intersections of cubics: (piece, t, point) arrays."""
+def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float, exact: float | None = None):
+    """Intersections of different pieces and self-intersections of cubics: (piece, t, point) arrays.
+
+    ``exact``: only points where the pieces meet within this distance and cross at a sine above ``_EXACT_SIN`` (true
+    crossings, near-parallel ones included; no overlap check), and no self-intersections."""
     i, j = _segment_pairs(seg, 0.5 * snap, diag)
     u, v, gap = _closest_on_segments(seg.a[i], seg.b[i], seg.a[j], seg.b[j])
     near = gap <= seg.err[i] + seg.err[j] + snap
@@ -294,7 +302,7 @@ def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float):
     s0 = seg.t0[i] + u * (seg.t1[i] - seg.t0[i])
     t0 = seg.t0[j] + v * (seg.t1[j] - seg.t0[j])
     s, t, gap = bz.refine_intersections(p.cp[pa], p.cp[pb], s0, t0)
-    ok = gap <= snap
+    ok = gap <= (snap if exact is None else exact)
     pa, pb, s, t = pa[ok], pb[ok], s[ok], t[ok]
     # one candidate per (pair, point): round the parameters to the snapping scale before the overlap check
     key = np.stack([pa, pb, np.round(s * diag / snap), np.round(t * diag / snap)], axis=1)
@@ -305,11 +313,14 @@ def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float):
         sine = np.abs(cross(ta, tb)) / (np.hypot(*ta.T) * np.hypot(*tb.T))
     check = ~(sine > _OVERLAP_SIN)
     drop = np.zeros(len(s), dtype=bool)
-    drop[check] = _coincide(p.cp[pa[check]], s[check], p.cp[pb[check]], t[check], snap)
+    if exact is None:
+        drop[check] = _coincide(p.cp[pa[check]], s[check], p.cp[pb[check]], t[check], snap)
+    else:
+        drop = ~(sine > _EXACT_SIN)
     pa, pb, s, t = pa[~drop], pb[~drop], s[~drop], t[~drop]
     point = 0.5 * (bz.evaluate(p.cp[pa], s) + bz.evaluate(p.cp[pb], t))
     selfx = bz.self_intersections(p.cp)
-    loop = np.nonzero(np.isfinite(selfx[:, 0]) & (p.deg == 3))[0]
+    loop = np.nonzero(np.isfinite(selfx[:, 0]) & (p.deg == 3) & (exact is None))[0]
     loop_pt = bz.evaluate(p.cp[loop], selfx[loop, 0])
     piece = np.concatenate([pa, pb, loop, loop])
     param = np.concatenate([s, t, selfx[loop, 0], selfx[loop, 1]])
@@ -368,10 +379,12 @@ def _t_junctions(p: _Pieces, seg: _Segments, verts: np.ndarray, snap: float, dia
     return piece[on], t[on], vid[on]
 
 
-def _split_at_crossings(p: _Pieces, domain, snap: float, diag: float) -> tuple[_Pieces, np.ndarray]:
-    """Split pieces at crossings and T-junctions and give every end point a vertex id."""
+def _split_at_crossings(p: _Pieces, domain, snap: float, diag: float,
+                        exact: float | None = None) -> tuple[_Pieces, np.ndarray]:
+    """Split pieces at crossings and T-junctions and give every end point a vertex id (``exact``: exact crossings only,
+    see ``_crossings``, and no T-junctions)."""
     seg = _segments(p.cp, p.deg, diag)
-    piece, param, points = _crossings(p, seg, snap, diag)
+    piece, param, points = _crossings(p, seg, snap, diag, exact)
     ends = np.concatenate([p.cp[:, 0], p.cp[:, 3]])
     labels, verts = _snap(np.concatenate([ends, points]), snap)
     verts = _onto_border(verts, domain, snap)
@@ -379,7 +392,7 @@ def _split_at_crossings(p: _Pieces, domain, snap: float, diag: float) -> tuple[_
     p = replace(p, ev=np.stack([labels[:n], labels[n:2 * n]], axis=1))
     vid = labels[2 * n:]
     own = (vid == p.ev[piece, 0]) | (vid == p.ev[piece, 1])
-    tj_piece, tj_t, tj_vid = _t_junctions(p, seg, verts, snap, diag)
+    tj_piece, tj_t, tj_vid = _t_junctions(p, seg, verts, snap, diag) if exact is None else (piece[:0], param[:0], vid[:0])
     piece = np.concatenate([piece[~own], tj_piece])
     param = np.concatenate([param[~own], tj_t])
     vid = np.concatenate([vid[~own], tj_vid])

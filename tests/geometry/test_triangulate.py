@@ -165,6 +165,21 @@ def test_line_pieces_are_single_edges_and_curves_sit_in_their_triangle():
     assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
 
 
+def test_line_touching_a_curve_tangentially_within_snapping_distance_meshes():
+    # a cylinder's silhouette line and its cap's outline as ``dfc curves`` wrote them for the corpus scene
+    # (dfc.bench.corpus.SHAPES_SCENE): the line starts 2e-5 px (less than the snapping distance) off the fitted
+    # outline, tangent to it. Pinning the outline to the line's end turned it by 1e-4 rad, and it crossed the line
+    # again 0.003 px further on, 2e-7 px deep: "constraint edges cross" before the clean-up's second crossing pass
+    curves = make_curves([
+        (1, [(154.6383293546934, 131.3370998513711), (213.36501308874594, 118.60032744104156)]),
+        (3, [(150.52127255323114, 133.79523129728818), (151.73031234237675, 132.47666689027346),
+             (153.1872832513801, 131.61551209613194), (154.79784709740466, 131.30439984325315)]),
+    ], domain=(0.0, 0.0, 256.0, 256.0))
+    mesh = triangulate(curves)
+    mesh.validate()
+    assert_same_drawing(curves, mesh, 1e-3)
+
+
 def test_triangles_are_counter_clockwise_and_cover_the_domain():
     mesh = triangulate(make_curves([(3, [(0.2, 0.2), (1.0, 2.9), (3.0, -1.0), (3.9, 2.8)])]))
     p = mesh.vertices[mesh.triangles]
