@@ -230,7 +230,7 @@ def _cases() -> dict[str, CorpusCase]:
                    needs="samples"),
         CorpusCase("mitsuba-gaussian-auto", "samples/scene/scene.xml, Gaussian filter, 256 spp, HDR, --curves auto",
                    _mitsuba(lambda: SAMPLE_SCENE, "gaussian", spp), auto=True, zoom_truth=True, needs="samples"),
-        CorpusCase("mitsuba-shapes-hdr", "analytic shapes with an emitter in view (SHAPES_SCENE), box filter, "
+        CorpusCase("mitsuba-shapes-hdr", "analytic shapes, an emitter in view (SHAPES_SCENE), box filter, "
                    "256 spp, HDR, the scene's curves", _mitsuba(_shapes_path, "box", spp), zoom_truth=True),
         CorpusCase("mitsuba-shapes-auto", "the same shapes, Gaussian filter, 256 spp, HDR, --curves auto",
                    _mitsuba(_shapes_path, "gaussian", spp), auto=True, zoom_truth=True),
@@ -241,11 +241,11 @@ def _cases() -> dict[str, CorpusCase]:
         cases.append(CorpusCase(f"dc-{name}", f"diffusion curves {stem}.xml solved, the scene's curves, 1x only",
                                 _diffusion(stem, False), needs="shared"))
         if name in NOISY:
-                cases.append(CorpusCase(f"dc-{name}-noisy", f"{stem}.xml solved + Gaussian noise σ {NOISE_SIGMA}, "
-                                    "8-bit; PSNR against the input and the clean solve, 1x only",
+                cases.append(CorpusCase(f"dc-{name}-noisy", f"{stem}.xml solved + noise σ {NOISE_SIGMA}, 8-bit; "
+                                    "PSNR vs the input and the clean solve, 1x",
                                     _diffusion(stem, True), needs="shared"))
     cases.append(CorpusCase("point-shapes", "analytic scene shapes point-sampled (point filter), the scene's curves, "
-                            "windows against its exact value", _point_shapes, zoom_truth=True, pixel_grid=1))
+                            "windows vs its exact value", _point_shapes, zoom_truth=True, pixel_grid=1))
     return {c.name: c for c in cases}
 
 

@@ -221,12 +221,15 @@ def test_tiny_input_says_the_file_is_larger(tmp_path, capsys):
 
 
 def test_list_scenes_prints_one_summary_line_each(capsys):
+    from dfc.bench.corpus import CASES
     from dfc.bench.scenes import SCENES, SUMMARIES
 
     assert set(SUMMARIES) == set(SCENES)
     code, out, _ = run(["bench", "--list-scenes"], capsys)
     lines = out.strip().splitlines()
-    assert code == 0 and [ln.split()[0] for ln in lines] == list(SCENES)
+    scenes = [ln for ln in lines if not ln.startswith("corpus case ")]
+    cases = [ln.removeprefix("corpus case ").split(":")[0] for ln in lines if ln.startswith("corpus case ")]
+    assert code == 0 and [ln.split()[0] for ln in scenes] == list(SCENES) and cases == list(CASES)
     for line in lines:
         assert "``" not in line and line.rstrip()[-1] not in ",(" and len(line) < 130
 
