@@ -650,14 +650,8 @@ def _final_mesh(points, steiner, line_edges, line_piece, chords, cp, degree, cur
         unique_apex, ids = np.unique(apex[src], axis=0, return_inverse=True)  # touching tangent triangles share X
         ids = len(base) + ids.reshape(-1)
         apex_edges = np.concatenate([np.stack([chords[src, 0], ids], 1), np.stack([ids, chords[src, 1]], 1)])
-        pts = np.concatenate([base, unique_apex])
-        t = _cdt(pts, np.concatenate([edges, apex_edges]), domain)
-        t.erase_outer_triangles()
-        _check_constraints_kept(t, pts, domain)
-        v, tri = _arrays(t)
-        p = v[tri]
-        flip = cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]) < 0
-        tri[flip] = tri[flip][:, ::-1]
+        v = np.concatenate([base, unique_apex])
+        tri = constrained_delaunay(v, np.concatenate([edges, apex_edges]), domain)
         holder = _chord_triangles(tri, chords, cp, len(v))
         corner = v[tri[holder]]
         dist = np.stack([min_side_distance(cp, corner[:, k], corner[:, (k + 1) % 3]) for k in range(3)], axis=1)
