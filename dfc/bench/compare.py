@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -101,6 +101,8 @@ class BenchSettings:
     keep_going : a method that cannot meet the budget is recorded under ``failed`` instead of ending the run
     default_encode : dfc is encoded as ``dfc encode`` does by default (its own steps and batch size;
         ``steps`` and ``batch_size`` then apply to the neural baselines only)
+    prune_curves : curves found in the image (``Curves.source`` "auto") are pruned for each budget before dfc's
+        encode, as ``dfc encode --curves auto`` does (``dfc.geometry.sources.prune``)
     """
 
     steps: int = IMAGE_STEPS
@@ -120,6 +122,7 @@ class BenchSettings:
     pixel_grid: int = 4
     keep_going: bool = False
     default_encode: bool = False
+    prune_curves: bool = True
 
     def check(self, budgeted: bool = False) -> None:
         """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
@@ -204,12 +207,20 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
         if (step + 1) % every == 0 or step + 1 == steps:
             progress(f"dfc: step {step + 1}/{steps}, batch PSNR {batch_psnr:.2f} dB")
 
+    pruned = None
+    if settings.prune_curves and curves.source == "auto":
+        from ..geometry.sources.prune import prune_curves
+
+        pruned = prune_curves(pixels, curves, n_triangles=settings.max_triangles, target_bytes=settings.target_bytes)
+        progress(f"dfc: curves pruned: {pruned.summary()}")
+        curves = replace(pruned.curves, source="auto")
     blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
     model = loads(blob, device=settings.device)
     details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,
                           "dim": enc.dim, "feature_bits": report.feature_bits, "mesh_bits": enc.mesh_bits,
                           "steps": steps},
-               "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds}
+               "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds,
+               **({"pruned_curves": pruned.to_dict()} if pruned is not None else {})}
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}
 
 

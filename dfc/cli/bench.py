@@ -76,6 +76,9 @@ def _budgets(ctx, param, value):
               "[default: 0.25,0.5,1,2].")
 @click.option("--corpus-jobs", type=click.IntRange(min=1), default=1, show_default=True,
               help="--corpus: cases run at once, each in a process of its own on one thread.")
+@click.option("--prune-curves/--no-prune-curves", "prune_curves", default=True, show_default=True,
+              help="--corpus: prune the curves of the --curves auto cases for each budget, as dfc encode --curves auto "
+                   "does (dfc.geometry.sources.prune).")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes (and the corpus cases) and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
               help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
@@ -123,7 +126,7 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, corpus_jobs, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            corpus_data, corpus_bpp, corpus_jobs, prune_curves, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -166,11 +169,12 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
                 or probes or fit_curves_to_image:
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
-        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, output, zooms, methods, steps, batch_size, size, render, spp,
+        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, output, zooms, methods, steps, batch_size, size, render, spp,
                 pixel_grid, max_triangles, seed, device, json_path, quiet)
         return
-    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1:
-        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp and --corpus-jobs apply to --corpus")
+    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1 or not prune_curves:
+        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp, --corpus-jobs and --no-prune-curves apply "
+                               "to --corpus")
     render = render or 256
     from ..bench.rendered import is_scene_file
 
@@ -309,7 +313,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     _finish(markdown_table(results), output, json_path)
 
 
-def _corpus(cases, data, bpp, jobs, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
+def _corpus(cases, data, bpp, jobs, prune_curves, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
             seed, device, json_path, quiet) -> None:
     """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
     are given (they then apply to it too)."""
@@ -330,7 +334,7 @@ def _corpus(cases, data, bpp, jobs, output, zooms, methods, steps, batch_size, s
     settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14, render=render or 128,
                              spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, CORPUS_METHODS),
                              max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=False,
-                             match_time=False, pixel_grid=pixel_grid, keep_going=True)
+                             match_time=False, pixel_grid=pixel_grid, keep_going=True, prune_curves=prune_curves)
     settings.check(budgeted=True)
     own = steps is not None or batch_size is not None
 

@@ -87,6 +87,14 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
     stats["pixel_filter"] = str(pixel_filter) + (f" (auto: {detection.evidence()})" if detection else " (as given)")
     summary = {"width": image.width, "height": image.height, "channels": image.channels,
                "settings": settings.to_dict(), "pixel_model": detection.to_dict() if detection else None}
+    if o["prune_curves"]:
+        from ..geometry.sources.prune import prune_curves
+
+        progress("prune")
+        pruned = prune_curves(image.pixels, curves, target_bytes=o["target_bytes"])
+        curves = pruned.curves
+        summary["pruned"] = pruned.to_dict()
+        stats["pruned"] = pruned.summary()
     before = None
     if o["refine"]:
         from ..geometry.sources.refine import refine_curves
@@ -107,7 +115,8 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
 
 
 SOURCES = (Source("Mitsuba 3 scene", _is_scene, _from_scene, SCENE_OPTIONS),
-           Source("image", _is_image, _from_image, (*IMAGE_OPTIONS, "pixel_filter", "refine")))
+           Source("image", _is_image, _from_image, (*IMAGE_OPTIONS, "pixel_filter", "refine", "prune_curves",
+                                                                       "target_bytes")))
 """Tried in order on the input path; the first that accepts it extracts the curves."""
 
 
@@ -161,6 +170,13 @@ def _source(path: Path, ctx: click.Context) -> Source:
               help="Image: move the curves' control points until the pixels they cross are explained by sharp steps "
                    "seen through the pixel filter (dfc.geometry.sources.refine); the preview shows the curves before "
                    "(thin, grey) and after.")
+@click.option("--prune-curves/--no-prune-curves", "prune_curves", default=False, show_default=True,
+              help="Image: drop the curves that do not earn their bytes in a dfc file (the squared error a curve "
+                   "removes against a continuous field across it, per byte of the mesh it forces; "
+                   "dfc.geometry.sources.prune), as dfc encode --curves auto does.")
+@click.option("--target-bytes", type=click.IntRange(min=1), metavar="N",
+              help="Image, with --prune-curves: prune for a file of at most N bytes (fewer curves kept for smaller N), "
+                   "as dfc encode --target-bytes N does.")
 @click.option("--preview", type=click.Path(dir_okay=False),
               help="Also draw the curves over the input (a scene: a flat-shaded picture of it) to this PNG.")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False, allow_dash=True),
@@ -190,6 +206,8 @@ def command(ctx, input_path, output, tolerance, preview, json_path, quiet, **opt
     if options["low"] > options["high"]:
         raise click.BadParameter(f"--low ({options['low']}) must not exceed --high ({options['high']})",
                                  param_hint="'--low'")
+    if options["target_bytes"] is not None and not options["prune_curves"]:
+        raise click.UsageError("--target-bytes sizes the pruning: give it with --prune-curves")
     path = Path(input_path)
     source = _source(path, ctx)
     stats: dict = {}

@@ -129,6 +129,11 @@ def _curves_arg(ctx, param, value):
               help="Image read whole: before the mesh is built, move the curves' control points until the pixels they "
                    "cross are explained by sharp steps seen through the pixel filter (dfc curves --refine)  "
                    "[default: on with --curves auto, off with a curves file].")
+@click.option("--prune-curves/--no-prune-curves", "prune_curves", default=None,
+              help="Image read whole: before the mesh is built, drop the curves that do not earn their bytes (the "
+                   "squared error a curve removes against a continuous field across it, per byte of the mesh it "
+                   "forces; fewer under a smaller --target-bytes; dfc.geometry.sources.prune)  [default: on with "
+                   "--curves auto, off with a curves file].")
 @click.option("--device", default=FitSettings.device, show_default=True,
               help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
@@ -152,7 +157,7 @@ def _curves_arg(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling,
-            reference_path, refine_curves, json_path, quiet, **setting_options):
+            reference_path, refine_curves, prune_curves, json_path, quiet, **setting_options):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
     sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
@@ -197,6 +202,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             raise click.UsageError(f"--curves auto finds curves in an image; give the curves of {kind} input")
         if refine_curves and kind != "image":
             raise click.UsageError(f"--refine-curves refines curves against an image's pixels, not {kind} input")
+        if prune_curves and kind != "image":
+            raise click.UsageError(f"--prune-curves weighs curves against an image's pixels, not {kind} input")
         if workers > 1 and settings.device.startswith("cuda") and workers > _gpus():
             raise click.BadParameter(f"{workers} ranks on CUDA need as many GPUs; {_gpus()} are visible",
                                      param_hint="'--workers'")
@@ -215,6 +222,10 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             raise click.UsageError("--refine-curves reads the whole image; for an image read out of core "
                                    "(--epoch-pixels, --workers, torchrun, EXR above 4096x4096) refine its curves with "
                                    "dfc curves IMAGE --refine first")
+        if prune_curves and out_of_core:
+            raise click.UsageError("--prune-curves reads the whole image; for an image read out of core "
+                                   "(--epoch-pixels, --workers, torchrun, EXR above 4096x4096) prune its curves with "
+                                   "dfc curves IMAGE --prune-curves first")
         if curves_path == "auto" and out_of_core:
             raise click.UsageError("--curves auto reads the whole image; for an image read out of core (--epoch-pixels, "
                                    "--workers, torchrun, EXR above 4096x4096) find its curves with dfc curves first")
@@ -232,6 +243,11 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             curves, curves_info, used = _auto_curves(signal, settings.pixel_filter)
         else:
             curves = read_curves_checked(curves_path, quiet)
+        pruned = None
+        if prune_curves or (prune_curves is None and curves_path == "auto" and not out_of_core):
+            curves, pruned = _pruned_curves(signal, curves, settings, fit_curves_to_image)
+            if curves_info is not None:
+                curves_info = {**curves_info, "pruned": pruned.to_dict()}
         refined = None
         if refine_curves or (refine_curves is None and curves_path == "auto" and not out_of_core):
             curves, refined = _refined_curves(signal, curves, settings.pixel_filter, used, fit_curves_to_image, quiet)
@@ -259,7 +275,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         out.flush()
     else:
         write_bytes_atomic(output, blob)
-    _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path), refined)
+    _summary(output, kind, report, reference_path, curves_info, stdout_taken(output, json_path), refined, pruned)
     if report.target_psnr is not None and report.psnr < report.target_psnr:
         what = "--target-psnr" if target_psnr is not None else "the default FEM target of"
         note(f"{what} {report.target_psnr:g} dB not reached: {report.psnr:.2f} dB with {report.n_triangles} "
@@ -275,7 +291,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
 
         write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
                                **({"curves": curves_info} if curves_info else {}),
-                               **({"refined_curves": refined.to_dict()} if refined else {}), **asdict(report)})
+                               **({"refined_curves": refined.to_dict()} if refined else {}),
+                               **({"pruned_curves": pruned.to_dict()} if pruned else {}), **asdict(report)})
 
 
 def encode_settings(options: dict):
@@ -314,6 +331,18 @@ def _auto_curves(image, pixel_filter: str = "auto"):
     return replace(curves, source="auto"), record, used
 
 
+def _pruned_curves(image, curves, settings, fit_curves_to_image: bool):
+    """(curves, ``Pruned``) of ``--prune-curves``: ``curves`` on the image's domain (``dfc.codec.check_domain``) less
+    those that do not earn their bytes for a mesh of ``settings.max_triangles`` (default size when None) in a file of
+    ``settings.target_bytes``."""
+    from ..codec import check_domain
+    from ..geometry.sources.prune import prune_curves
+
+    curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
+    pruned = prune_curves(image.pixels, curves, n_triangles=settings.max_triangles, target_bytes=settings.target_bytes)
+    return pruned.curves, pruned
+
+
 def _refined_curves(image, curves, pixel_filter: str, used, fit_curves_to_image: bool, quiet: bool):
     """(curves, ``Refined``) of ``--refine-curves``: ``curves`` on the image's domain (as the encoder takes them:
     ``dfc.codec.check_domain``) refined against its pixels through ``used`` (the extractor's filter) or the filter of
@@ -332,15 +361,18 @@ def _refined_curves(image, curves, pixel_filter: str, used, fit_curves_to_image:
     return refined.curves, refined
 
 
-def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool, refined=None) -> None:
+def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool, refined=None,
+             pruned=None) -> None:
     """The text summary: bytes, chunks, mesh, PSNR (its definition said with it), times; where the curves came
-    from when they were extracted, and their refinement (``refined``) when they were refined."""
+    from when they were extracted, their pruning (``pruned``) and their refinement (``refined``)."""
     unit = {"samples": "sample", "fem": "node"}.get(kind, "pixel")
     lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
     if curves_info:
         lines.append(f"curves: {curves_info['curves']} curves ({curves_info['pieces']} pieces) found in the image by "
                      "dfc curves' extractor at its defaults (recorded in the file; see them with dfc curves IMAGE "
                      "--preview P.png)")
+    if pruned is not None:
+        lines.append(f"curves pruned: {pruned.summary()}")
     if refined is not None:
         lines.append(f"curves refined against the pixels: {refined.summary()}")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
