@@ -94,7 +94,7 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
         pruned = prune_curves(image.pixels, curves, target_bytes=o["target_bytes"])
         curves = pruned.curves
         summary["pruned"] = pruned.to_dict()
-        stats["pruned"] = pruned.summary()
+        stats["curves_pruned"] = pruned.summary()
     before = None
     if o["refine"]:
         from ..geometry.sources.refine import refine_curves

@@ -192,3 +192,53 @@ def test_refine_curves_bad_input_is_one_error_line(kind, disc_exr, tmp_path, cap
     code, _, err = run(["encode", *inputs, "--curves", curves, "--refine-curves", "-o", out, "--steps", "2"], capsys)
     assert_one_line_error(code, err, match)
     assert not out.exists()
+
+
+def test_prune_curves_keeps_the_disc_and_drops_it_under_a_tiny_target(disc_exr, tmp_path, capsys):
+    """``dfc curves IMAGE --prune-curves``: the disc's sharp edge earns its bytes; for a 100-byte file it does not."""
+    out = tmp_path / "c.json"
+    code, stdout, err = run(["curves", disc_exr, "-o", out, "--prune-curves", "--json", "-"], capsys)
+    assert code == 0, err
+    summary = json.loads(stdout)
+    assert summary["pruned"]["dropped"] == 0 and summary["curves"] == 1 and "0 of 1 curves dropped" in err
+    code, stdout, err = run(["curves", disc_exr, "-o", out, "--prune-curves", "--target-bytes", "100", "--json", "-"],
+                            capsys)
+    assert code == 0, err
+    assert json.loads(stdout)["pruned"]["dropped"] == 1 and len(read_json(out)) == 0
+
+
+def test_encode_with_auto_curves_prunes_them_by_default(disc_exr, tmp_path, capsys):
+    from dfc.cli.stats import file_stats
+
+    out = tmp_path / "disc.dfield"
+    args = ["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "2", "--batch-size", "256",
+            "--no-refine-curves"]
+    code, stdout, err = run(args, capsys)
+    assert code == 0, err
+    assert "curves pruned: 0 of 1 curves dropped" in stdout
+    assert file_stats(out)["encoder"]["curves"]["pruned"]["dropped"] == 0
+    code, stdout, err = run([*args, "--no-prune-curves"], capsys)
+    assert code == 0 and "pruned" not in stdout and "pruned" not in file_stats(out)["encoder"]["curves"]
+
+
+@pytest.mark.parametrize("case", ["zero_target", "target_alone", "samples"])
+def test_prune_curves_bad_options_are_one_error_line(case, disc_exr, tmp_path, capsys):
+    out = tmp_path / "x.json"
+    if case == "zero_target":
+        argv, match = ["curves", disc_exr, "-o", out, "--prune-curves", "--target-bytes", "0"], "--target-bytes"
+    elif case == "target_alone":
+        argv, match = ["curves", disc_exr, "-o", out, "--target-bytes", "500"], "give it with --prune-curves"
+    else:
+        from dfc.geometry.curves import Curves
+        from dfc.geometry.sources import write_json
+
+        write_json(Curves((0.0, 0.0, 8.0, 8.0), np.array([[[1.0, 1.0], [3.0, 3.0], [5.0, 5.0], [7.0, 7.0]]]), [1], [0],
+                          [[0.0, 1.0]], ["stroke"], [None]), tmp_path / "c.json")
+        xy = np.random.default_rng(0).random((200, 2)) * 8
+        np.savez(tmp_path / "s.npz", xy=xy, values=xy[:, :1], domain=[0, 0, 8, 8])
+        out = tmp_path / "x.dfield"
+        argv, match = (["encode", tmp_path / "s.npz", "--curves", tmp_path / "c.json", "--prune-curves", "-o", out],
+                       "not samples input")
+    code, _, err = run(argv, capsys)
+    assert_one_line_error(code, err, match)
+    assert not out.exists()
