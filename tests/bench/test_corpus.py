@@ -142,8 +142,9 @@ def test_bad_corpus_options_are_one_error_line(tmp_path, capsys, args, match):
     assert not (tmp_path / "c.json").exists()
 
 
-def test_corpus_options_need_corpus(tmp_path, capsys):
-    code, _, err = run(["bench", "--scene", "shapes", "--corpus-cases", "point-shapes", "-o", tmp_path], capsys)
+@pytest.mark.parametrize("option", [["--corpus-cases", "point-shapes"], ["--no-prune-curves"]])
+def test_corpus_options_need_corpus(tmp_path, capsys, option):
+    code, _, err = run(["bench", "--scene", "shapes", *option, "-o", tmp_path], capsys)
     assert_one_line_error(code, err, "apply to --corpus")
 
 
