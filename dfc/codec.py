@@ -565,10 +565,9 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     one, plus the new vertices) and refit from the current fit (``init``). Without a byte target a round splits the
     triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
     (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
-    files priced with ``size_of``; a refit whose file exceeds the target is redone once with the points cut in
-    proportion to the overshoot, else the round is undone). Stops early when no triangle is left to split, or when
-    ``quality(model)`` reaches ``settings.target_psnr``."""
-    from .rate import FILL, build_mesh, fill_points, refinement_points
+    files priced with ``size_of``). Stops early when no triangle is left to split, or when ``quality(model)``
+    reaches ``settings.target_psnr``."""
+    from .rate import build_mesh, fill_points, refinement_points
 
     extra = np.zeros((0, 2))
     steps = settings.refine_steps or max(1, settings.steps // 2)
@@ -585,25 +584,9 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
                                  min_area=min_area)
         if not len(points):
             break
-
-        def refit(points):
-            mesh = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, points]))
-            return fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model, **fit_kw)
-
-        refined = refit(points)
-        if settings.target_bytes is not None and size_of(refined) > settings.target_bytes:
-            # the refit features cost more than the carried-over ones the points were priced with: fewer points, in
-            # proportion to the bytes they added, else the round is undone
-            before, after = size_of(model), size_of(refined)
-            keep = int(len(points) * max(0.0, FILL * settings.target_bytes - before) / max(1, after - before))
-            refined = refit(points[:keep]) if keep else model
-            points = points[:keep]
-            if refined is not model and size_of(refined) > settings.target_bytes:
-                refined, points = model, points[:0]
-        if refined is model:
-            break
         extra = np.concatenate([extra, points])
-        model = refined
+        mesh = build_mesh(curves, mesh_settings, extra_points=extra)
+        model = fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model, **fit_kw)
     return model
 
 
