@@ -27,8 +27,8 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import encode_model, encoder_info, load, loads
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
-from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, decoder_hidden, image_mesh_size, mesh_size_set,
-                   sample_mesh_size, sized_mesh)
+from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES, decoder_hidden, image_mesh_size,
+                   mesh_size_set, sample_mesh_size, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DEFAULT_STEPS, IMAGE_STEPS
@@ -565,12 +565,18 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     one, plus the new vertices) and refit from the current fit (``init``). Without a byte target a round splits the
     triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
     (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
-    files priced with ``size_of``). Stops early when no triangle is left to split, or when ``quality(model)``
-    reaches ``settings.target_psnr``."""
+    files priced with ``size_of``), and a refit whose file still outgrows the target is redone with fewer of them
+    (``_fill_within``). Stops early when no triangle is left to split, or when ``quality(model)`` reaches
+    ``settings.target_psnr``."""
     from .rate import build_mesh, fill_points, refinement_points
 
     extra = np.zeros((0, 2))
     steps = settings.refine_steps or max(1, settings.steps // 2)
+
+    def refit(points):
+        mesh = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, points]))
+        return fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model, **fit_kw)
+
     for _ in range(settings.refine):
         if settings.target_psnr is not None and quality(model) >= settings.target_psnr:
             break
@@ -579,15 +585,35 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
         if settings.target_bytes is None:
             most = max(1, round(settings.refine_fraction * mesh.n_triangles))
             points = refinement_points(mesh, xy, err, most=most, min_area=min_area)
+            refined = refit(points) if len(points) else None
         else:
             points = fill_points(model, curves, mesh_settings, extra, xy, err, size_of, settings.target_bytes,
                                  min_area=min_area)
-        if not len(points):
+            refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes)
+        if refined is None:
             break
         extra = np.concatenate([extra, points])
-        mesh = build_mesh(curves, mesh_settings, extra_points=extra)
-        model = fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model, **fit_kw)
+        model = refined
     return model
+
+
+def _fill_within(model, points: np.ndarray, refit, size_of, target: int):
+    """(refitted model, points (P, 2) it used), or (None, no points) when even the fewest fill points outgrow
+    ``target``: ``refit(points)`` on the fill's points (``dfc.rate.fill_points``, in decreasing order of error),
+    then, while the file is over ``target`` bytes (the refit's features can cost more than the carried-over ones it
+    was priced with), on a prefix of them cut in proportion to the overshoot (at most ``FILL_RETRIES`` times)."""
+    base = None
+    for _ in range(FILL_RETRIES + 1):
+        if not len(points):
+            break
+        refined = refit(points)
+        size = size_of(refined)
+        if size <= target:
+            return refined, points
+        base = size_of(model) if base is None else base
+        keep = int(len(points) * FILL * (target - base) / max(size - base, 1))
+        points = points[:max(0, min(keep, len(points) - 1))]
+    return None, points[:0]
 
 
 def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) -> np.ndarray:

@@ -19,9 +19,10 @@ from .geometry.curves import Curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
-__all__ = ["DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL", "FILL_CARRY_POINTS", "NOISY_SAMPLES_PER_TRIANGLE",
-           "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points",
-           "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "sized_mesh"]
+__all__ = ["DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL", "FILL_CARRY_POINTS", "FILL_RETRIES",
+           "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh",
+           "decoder_hidden", "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points",
+           "sample_mesh_size", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -39,6 +40,9 @@ triangles of its square, plus what the curves force."""
 FILL = 0.97
 """Refinement under a byte target aims at this share of the target (``fill_points``): the refit changes the
 features' bytes by a few per cent."""
+FILL_RETRIES = 2
+"""Under a byte target, refits redone with fewer fill points when the refitted file still outgrows the target
+(``dfc.codec``): the refit's features can cost more bytes than the carried-over ones ``fill_points`` priced."""
 FILL_CARRY_POINTS = 1 << 14
 """``fill_points`` prices a candidate mesh with a carry-over fitted at about this many of the caller's points."""
 FEATURE_BITS_FALLBACK = (8, 6)

@@ -155,6 +155,51 @@ def test_target_bytes_sizes_the_file(scene, target):
     assert 0.7 * target <= len(probe_only) <= target
 
 
+def test_target_bytes_stays_a_cap_when_the_fill_overshoots(scene, monkeypatch):
+    """A fill that prices too many points (the refit's features cost more than the carried-over ones) is refitted
+    with fewer until the file is within the target; more refinement than the probe's mesh is still kept."""
+    import dfc.rate
+
+    image = scene.render(64, 64, spp=1)
+    curves = check_domain(scene.curves, 64, 64, fit=True)
+    settings = EncodeSettings(steps=2, batch_size=512, target_bytes=9_000)
+    real = dfc.rate.fill_points
+    calls = []
+
+    def greedy(model, *args, **kw):  # every triangle split: far over the target
+        calls.append(real(model, *args, **kw))
+        return dfc.rate.refinement_points(model.field.mesh, args[3], args[4], share=1.0,
+                                          most=model.field.mesh.n_triangles)
+
+    monkeypatch.setattr(dfc.rate, "fill_points", greedy)
+    blob, report = encode_image(image, curves, settings)
+    probe_only, probe = encode_image(image, curves, replace(settings, refine=0))
+    assert calls and len(blob) <= 9_000
+    assert report.n_triangles > probe.n_triangles
+
+
+def test_fill_within_cuts_the_points_in_proportion_and_gives_up():
+    from dfc.codec import _fill_within
+
+    points = np.arange(100.0).reshape(50, 2)
+    tried = []
+
+    def refit(p):
+        tried.append(len(p))
+        return len(p)
+
+    def size_of(m):  # 1,000 bytes without fill points, 100 bytes per point
+        return 1_000 + 100 * m
+
+    model = 0
+    refined, used = _fill_within(model, points, refit, size_of, target=3_000)
+    assert tried[0] == 50 and refined == len(used) <= 20 and tried[-1] == len(used) and len(tried) == 2
+    np.testing.assert_array_equal(used, points[:len(used)])  # the points with the largest error first
+    tried.clear()
+    refined, used = _fill_within(model, points, refit, size_of, target=900)  # over it before any point
+    assert refined is None and used.shape == (0, 2) and tried == [50]
+
+
 def test_target_psnr_refines_until_the_fit_reaches_it(scene):
     """A PSNR target the first fit already reaches refines nothing; one it cannot reach runs every round, each on a
     finer mesh, and the report says what the file reached."""

@@ -169,20 +169,30 @@ def _clip(p: _Pieces, domain, snap: float) -> _Pieces:
     """Cut pieces where they cross the domain's border; drop the parts outside it or lying on it.
 
     Pieces are also cut at their cusps, so that a piece folding back along itself becomes two pieces
-    whose overlap the crossing stage resolves."""
+    whose overlap the crossing stage resolves, and a piece that runs along the border, closer than ``snap``
+    inside it, is also cut where it enters and leaves that band, so that the part lying on the border goes."""
     x0, y0, x1, y1 = domain
     cusp = bz.cusps(p.cp, snap)
     i, j = np.nonzero(np.isfinite(cusp))
     pieces, ts = [i], [cusp[i, j]]
-    for axis, value in ((0, x0), (0, x1), (1, y0), (1, y1)):
-        r = bz.bernstein_roots(p.cp[:, :, axis] - value)
-        i, j = np.nonzero(np.isfinite(r))
-        pieces.append(i)
-        ts.append(r[i, j])
+    # pieces with two consecutive polyline points within ``snap`` of the border run along it (a piece that only
+    # crosses or ends on it has no such pair, and keeps its end where it crosses)
+    band = np.abs(_depth(bz.flatten(p.cp, 16), domain)) <= snap
+    along = (band[:, :-1] & band[:, 1:]).any(axis=1)
+    for axis, value, band in ((0, x0, x0 + snap), (0, x1, x1 - snap), (1, y0, y0 + snap), (1, y1, y1 - snap)):
+        for line, which in ((value, slice(None)), (band, along)):
+            r = bz.bernstein_roots(p.cp[which, :, axis] - line)
+            i, j = np.nonzero(np.isfinite(r))
+            pieces.append(np.arange(len(p))[which][i])
+            ts.append(r[i, j])
     p = _cut(p, np.concatenate(pieces), np.concatenate(ts))
-    pts = bz.flatten(p.cp, 8)
-    depth = np.minimum.reduce([pts[..., 0] - x0, x1 - pts[..., 0], pts[..., 1] - y0, y1 - pts[..., 1]])
-    return p.take(depth.max(axis=1) > snap)
+    return p.take(_depth(bz.flatten(p.cp, 8), domain).max(axis=1) > snap)
+
+
+def _depth(pts: np.ndarray, domain) -> np.ndarray:
+    """Signed distance inside the domain's border (negative outside): (..., 2) -> (...)."""
+    x0, y0, x1, y1 = domain
+    return np.minimum.reduce([pts[..., 0] - x0, x1 - pts[..., 0], pts[..., 1] - y0, y1 - pts[..., 1]])
 
 
 # -------------------------------------------------------------------------- 2-3. crossings, snapping, T

@@ -180,6 +180,22 @@ def test_line_touching_a_curve_tangentially_within_snapping_distance_meshes():
     assert_same_drawing(curves, mesh, 1e-3)
 
 
+@pytest.mark.parametrize("density", [None, 0.05, 0.5])
+@pytest.mark.parametrize("pieces", [
+    # a quadratic leaving a corner along the border, and a cubic folding back along the same border 1e-5 wide
+    [(2, [(0.0, 0.0), (0.0, 0.375), (0.5, 0.0)]), (3, [(0.0, 0.0), (0.0, 0.375), (0.0, 0.0), (1e-5, 0.0)])],
+    # a quadratic hairpin up the border and back, never more than 1e-5 inside it, beside a line to the border
+    [(1, [(0.0, 0.375), (0.5, 0.0)]), (2, [(0.0, 0.0), (0.0, 1.125), (1e-5, 0.0)])],
+])
+def test_pieces_running_along_the_border_lose_the_part_on_it(pieces, density):
+    # fuzzed examples: the parts within the snapping distance of the border were kept ("constraint edges cross",
+    # "discontinuous edge on the border is not a mesh edge") until the clip cut pieces where they enter that band
+    curves = make_curves(pieces)
+    mesh = triangulate(curves, max_area=density)
+    mesh.validate()
+    assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
+
+
 def test_triangles_are_counter_clockwise_and_cover_the_domain():
     mesh = triangulate(make_curves([(3, [(0.2, 0.2), (1.0, 2.9), (3.0, -1.0), (3.9, 2.8)])]))
     p = mesh.vertices[mesh.triangles]
