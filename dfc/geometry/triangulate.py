@@ -22,6 +22,7 @@ from the curves, ``max_triangles`` caps the count. With none of them the target 
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from functools import partial
 
 import numpy as np
@@ -36,7 +37,8 @@ from .mesh import Mesh, min_side_distance
 from .plane import cross
 from .tolerances import tol
 
-__all__ = ["triangulate", "constrained_delaunay", "DEFAULT_TRIANGLES", "STEINER_STEPS_PER_EDGE"]
+__all__ = ["triangulate", "constrained_delaunay", "retriangulate", "DEFAULT_TRIANGLES", "GRID_SNAP",
+           "STEINER_STEPS_PER_EDGE"]
 
 DEFAULT_TRIANGLES = 2000
 """Triangle count the default density aims at over the whole domain (area bound = domain area / 1000)."""
@@ -44,6 +46,10 @@ DEFAULT_TRIANGLES = 2000
 STEINER_STEPS_PER_EDGE = 8
 """With ``lattice_bits``, free vertices snap to a lattice whose step is at most the nominal edge length over this
 (a power of two of grid steps; CHANGELOG.md, "Meshes derived in the decoder")."""
+
+GRID_SNAP = 2.0
+"""With ``lattice_bits``, the clean-up merges end points and intersections closer than this many steps of that grid
+(or ``tol.snap_rel`` of the diagonal if more): closer curve vertices could round to one grid point."""
 
 _MAX_ROUNDS = 60  # conflict-loop rounds; each halves the offending pieces
 _MAX_MIN_ANGLE = 34.0  # Ruppert-style refinement terminates for angle bounds below about 34°
@@ -88,7 +94,8 @@ def triangulate(
         Snap the free vertices (Steiner and ``extra_points``) to a sub-lattice of the ``lattice_bits`` grid of
         ``dfc.io.meshcodec`` (coordinates ``min(k · 2**s, 2**bits - 1)`` grid steps; ``2**s`` steps at most the
         nominal edge length over ``STEINER_STEPS_PER_EDGE``) before the final triangulation, dropping those that then
-        coincide, land near a constraint or in a tangent triangle; the vertices on curves keep their positions.
+        coincide, land near a constraint or in a tangent triangle; the vertices on curves keep their positions, but
+        the clean-up merges those closer than ``GRID_SNAP`` grid steps.
     stats : dict, optional
         Filled with timings in seconds (``clean_s``, ``conflict_s``, ``density_s``, ``cdt_s``) and counts
         (``pieces_in``, ``pieces_clean``, ``pieces_final``, ``apexes``, ``steiner``, ``vertices``, ``triangles``).
@@ -109,7 +116,7 @@ def triangulate(
     _check_sizes(max_area, edge_length, grading, max_triangles, min_angle)
     stats = {} if stats is None else stats
     clock = time.perf_counter()
-    pieces = clean(curves)
+    pieces = clean(curves, tol=_clean_tolerances(curves, lattice_bits))
     pieces = split_pieces(pieces, _line_length(pieces.domain, max_area, edge_length, max_triangles),
                           lines=True, curved=False)
     stats["clean_s"] = time.perf_counter() - clock
@@ -158,6 +165,15 @@ def triangulate(
     stats["cdt_s"] = time.perf_counter() - clock
     stats.update(apexes=n_apex, steiner=len(steiner), vertices=mesh.n_vertices, triangles=mesh.n_triangles)
     return mesh
+
+
+def _clean_tolerances(curves: Curves, lattice_bits: int | None):
+    """``tol`` with ``snap_rel`` raised to ``GRID_SNAP`` steps of the ``lattice_bits`` grid over ``curves.domain``."""
+    if lattice_bits is None:
+        return tol
+    x0, y0, x1, y1 = curves.domain
+    step = max(x1 - x0, y1 - y0) / (2.0**lattice_bits - 1.0)
+    return replace(tol, snap_rel=max(tol.snap_rel, GRID_SNAP * step / curves.diagonal))
 
 
 def _separate_pieces(pieces: Curves, eps: float):
@@ -587,6 +603,38 @@ def constrained_delaunay(points: np.ndarray, edges: np.ndarray, domain) -> np.nd
     if len(np.unique(tri)) != len(points):
         raise MeshError("triangulate: a point is in no triangle of the constrained Delaunay triangulation")
     return tri
+
+
+def retriangulate(mesh: Mesh, vertices: np.ndarray) -> Mesh:
+    """``mesh`` with its vertices moved to ``vertices`` (V, 2) float64 (distinct, in the domain; a small move, such as
+    rounding to a storage grid) and its triangles rebuilt as the constrained Delaunay triangulation of them, the
+    constraints being the discontinuous edges and every edge of the curved triangles. Each curved piece moves with
+    its old triangle (its inner control points keep their barycentric coordinates in it); the vertex order and every
+    index into the vertices are kept. Where the move turns a thin triangle over, the new mesh simply has a
+    different triangle there. Raises ``MeshError`` when the moved constraints cross or a vertex lands on one."""
+    v = np.asarray(vertices, np.float64)
+    old = np.asarray(mesh.vertices, np.float64)
+    ctri = np.asarray(mesh.triangles, np.int64)[np.asarray(mesh.curved_triangles, np.int64)]
+    ring = np.concatenate([ctri[:, [0, 1]], ctri[:, [1, 2]], ctri[:, [2, 0]]])
+    tri = constrained_delaunay(v, np.concatenate([np.asarray(mesh.disc_edges, np.int64).reshape(-1, 2), ring]),
+                               mesh.domain)
+    cp = np.array(mesh.curve_control_points, np.float64)
+    moved = (v[ctri] != old[ctri]).any(axis=(1, 2))  # pieces whose triangle stays keep their control points exactly
+    if moved.any():
+        t = ctri[moved]
+        a, b, c = (old[t[:, k]] for k in range(3))
+        det = cross(b - a, c - a)[:, None]
+        inner = cp[moved, 1:3] - a[:, None]
+        u = (inner[..., 0] * (c - a)[:, None, 1] - inner[..., 1] * (c - a)[:, None, 0]) / det
+        w = ((b - a)[:, None, 0] * inner[..., 1] - (b - a)[:, None, 1] * inner[..., 0]) / det
+        na, nb, nc = (v[t[:, k]] for k in range(3))
+        cp[moved, 1:3] = na[:, None] + u[..., None] * (nb - na)[:, None] + w[..., None] * (nc - na)[:, None]
+        ends = np.asarray(mesh.curve_endpoints, np.int64)[moved]
+        cp[moved, 0], cp[moved, 3] = v[ends[:, 0]], v[ends[:, 1]]
+    holder = _chord_triangles(tri, np.asarray(mesh.curve_endpoints, np.int64).reshape(-1, 2), cp, len(v))
+    return Mesh(domain=mesh.domain, vertices=v, triangles=tri, disc_edges=mesh.disc_edges,
+                curved_triangles=holder, curve_endpoints=mesh.curve_endpoints, curve_control_points=cp,
+                curve_degree=mesh.curve_degree, disc_edge_piece=mesh.disc_edge_piece, curve_piece=mesh.curve_piece)
 
 
 def _arrays(t: cdt.Triangulation) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ import zstandard
 
 from ..errors import FormatError, MeshError
 from ..geometry.mesh import Mesh
-from ..geometry.triangulate import constrained_delaunay
+from ..geometry.triangulate import constrained_delaunay, retriangulate
 from ..geometry.plane import cross
 from ..geometry.tolerances import tol
 
@@ -744,14 +744,32 @@ def roundtrip_mesh(mesh: Mesh, bits: int) -> Mesh:
     """The mesh exactly as a decoder of a file written from it sees it (Draco with ``bits`` if valid).
 
     Tries Draco with ``bits, bits + 2, ... <= 23`` and then the lossless raw encoding, returning the first
-    decoded mesh that passes every check (spec §6.1, ``Mesh.validate``). Raises ``MeshError`` if even the
-    raw encoding fails, i.e. ``mesh`` itself is invalid.
+    decoded mesh that passes every check (spec §6.1, ``Mesh.validate``). Where rounding to a grid turns a thin
+    triangle over, the mesh rounded to that grid and triangulated again (``dfc.geometry.triangulate.retriangulate``)
+    is tried before the next grid. Raises ``MeshError`` if even the raw encoding fails, i.e. ``mesh`` itself is
+    invalid.
     """
     for step in _ladder(bits):
         res = _try(mesh, step, level=1)
+        if res is None and step is not None:
+            res = _try_on_grid(mesh, step)
         if res is not None:
             return res[1]
     raise MeshError("mesh cannot be stored: it fails validation even when stored losslessly")
+
+
+def _try_on_grid(mesh: Mesh, bits: int):
+    """``_try`` on ``mesh`` rounded to the ``bits`` grid and triangulated again, or None (an invalid ``mesh``, two
+    vertices on one grid point, constraints that cross once rounded, or a mesh that fails a check)."""
+    q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
+    if _vertex_order(q) is None:
+        return None
+    try:
+        mesh.validate()  # an invalid mesh is refused, not repaired
+        moved = retriangulate(mesh, _denormalise(q / float(2**bits - 1), mesh.domain))
+    except MeshError:
+        return None
+    return _try(moved, bits, level=1)
 
 
 def _on_grid(mesh: Mesh, bits: int) -> bool:

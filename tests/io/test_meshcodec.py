@@ -342,3 +342,66 @@ def test_fuzzed_curves_derived_mesh_is_the_encoders(curves, density):
     _assert_same_mesh(out, view)
     out.validate()
     assert mesh_info(m, t)["encoding"] in ("derived", "raw")  # raw: the 16-bit grid could not hold the mesh
+
+
+def test_curve_vertices_finer_than_the_grid_keep_the_mesh_on_it():
+    """Scene curves as ``dfc curves`` writes them: end points 7.5e-5 px apart (closer than one step of the 20-bit
+    grid over 256 px) and chains of short line pieces bent by less than a step, whose thin triangles turn over when
+    rounded. The encoder's mesh is still on the 20-bit grid and stored derived (such meshes were stored raw, in
+    float64, at 5-10 times the bytes), and it still draws the curves."""
+    from dfc.rate import build_mesh
+    from dfc.settings import EncodeSettings
+    from tests.geometry.test_triangulate import assert_same_drawing
+
+    rng = np.random.default_rng(0)
+    pieces = [(1, [(10.0, 250.0), (60.0, 240.0)]), (1, [(60.0 + 7.5e-5, 240.0), (120.0, 250.0)])]
+    for k in range(30):
+        a = np.array([20.0 + 40.0 * (k % 6), 20.0 + 40.0 * (k // 6)])
+        d = rng.normal(size=2)
+        d /= np.hypot(*d)
+        mid = a + 10.0 * d + np.array([-d[1], d[0]]) * rng.uniform(-1e-6, 1e-6)
+        pieces += [(1, [tuple(a), tuple(mid)]), (1, [tuple(mid), tuple(a + 20.0 * d)])]
+    curves = make_curves(pieces, domain=(0.0, 0.0, 256.0, 256.0))
+    mesh = build_mesh(curves, EncodeSettings(max_triangles=600))
+    q = np.rint(mesh.vertices / 256.0 * (2**20 - 1))
+    np.testing.assert_array_equal(q / (2**20 - 1) * 256.0, mesh.vertices)
+    m, t = encode_roundtripped(mesh)
+    assert mesh_info(m, t)["encoding"] == "derived"
+    _assert_same_mesh(decode_mesh(m, t, mesh.domain), mesh)
+    assert_same_drawing(curves, mesh, 1e-3)
+
+
+def test_a_triangle_that_rounding_flattens_is_triangulated_again():
+    """A chain of two discontinuous edges C-A-B bent by 0.3 grid steps: its thin triangle C-B-A becomes flat on the
+    20-bit grid, so Draco's view of the mesh is invalid. ``roundtrip_mesh`` rounds the vertices and triangulates
+    again (``retriangulate``) instead of falling back to the raw float64 encoding."""
+    M = 2**20 - 1
+    g = 256.0 / M
+    xc, yc = 400_000, 400_000
+    corners = [(0.0, 0.0), (256.0, 0.0), (256.0, 256.0), (0.0, 256.0)]
+    v = np.array(corners + [(xc * g, yc * g), ((xc + 1000.3) * g, (yc + 0.3) * g), ((xc + 2000) * g, yc * g)])
+    tri = np.array([[4, 6, 5], [0, 1, 6], [0, 6, 4], [1, 2, 6], [6, 2, 5], [5, 2, 3], [5, 3, 4], [4, 3, 0]])
+    mesh = Mesh(domain=(0.0, 0.0, 256.0, 256.0), vertices=v, triangles=tri, disc_edges=np.array([[4, 5], [5, 6]]),
+                curved_triangles=np.zeros(0, np.int64), curve_endpoints=np.zeros((0, 2), np.int64),
+                curve_control_points=np.zeros((0, 4, 2)), curve_degree=np.zeros(0, np.int8),
+                disc_edge_piece=np.array([0, 1]), curve_piece=np.zeros(0, np.int64))
+    mesh.validate()
+    with pytest.raises(FormatError, match="counter-clockwise"):
+        decode_mesh(*encode_mesh(mesh, 20), mesh.domain)
+    out = roundtrip_mesh(mesh, 20)
+    out.validate()
+    rounded = np.rint(v / g) * g
+    np.testing.assert_array_equal(np.unique(out.vertices, axis=0), np.unique(rounded, axis=0))
+    edges = np.sort(out.vertices[out.disc_edges].reshape(-1, 4), axis=0)
+    np.testing.assert_array_equal(edges, np.sort(rounded[[[4, 5], [5, 6]]].reshape(-1, 4), axis=0))
+    assert mesh_info(*encode_roundtripped(out))["encoding"] in ("derived", "draco")
+
+
+def test_retriangulate_in_place_keeps_every_curve(mesh):
+    from dfc.geometry.triangulate import retriangulate
+
+    out = retriangulate(mesh, mesh.vertices)
+    out.validate()
+    np.testing.assert_array_equal(out.curve_control_points, mesh.curve_control_points)
+    np.testing.assert_array_equal(np.sort(out.triangles[out.curved_triangles], axis=1),
+                                  np.sort(mesh.triangles[mesh.curved_triangles], axis=1))  # the same holders
