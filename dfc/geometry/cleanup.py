@@ -177,13 +177,13 @@ def _clip(p: _Pieces, domain, snap: float) -> _Pieces:
     pieces, ts = [i], [cusp[i, j]]
     # pieces with two consecutive polyline points within ``snap`` of the border run along it (a piece that only
     # crosses or ends on it has no such pair, and keeps its end where it crosses)
-    band = np.abs(_depth(bz.flatten(p.cp, 16), domain)) <= snap
-    along = (band[:, :-1] & band[:, 1:]).any(axis=1)
-    for axis, value, band in ((0, x0, x0 + snap), (0, x1, x1 - snap), (1, y0, y0 + snap), (1, y1, y1 - snap)):
-        for line, which in ((value, slice(None)), (band, along)):
+    in_band = np.abs(_depth(bz.flatten(p.cp, 16), domain)) <= snap
+    every, along = np.arange(len(p)), np.flatnonzero((in_band[:, :-1] & in_band[:, 1:]).any(axis=1))
+    for axis, side, band_edge in ((0, x0, x0 + snap), (0, x1, x1 - snap), (1, y0, y0 + snap), (1, y1, y1 - snap)):
+        for line, which in ((side, every), (band_edge, along)):
             r = bz.bernstein_roots(p.cp[which, :, axis] - line)
             i, j = np.nonzero(np.isfinite(r))
-            pieces.append(np.arange(len(p))[which][i])
+            pieces.append(which[i])
             ts.append(r[i, j])
     p = _cut(p, np.concatenate(pieces), np.concatenate(ts))
     return p.take(_depth(bz.flatten(p.cp, 8), domain).max(axis=1) > snap)

@@ -623,10 +623,9 @@ def retriangulate(mesh: Mesh, vertices: np.ndarray) -> Mesh:
     if moved.any():
         t = ctri[moved]
         a, b, c = (old[t[:, k]] for k in range(3))
-        det = cross(b - a, c - a)[:, None]
-        inner = cp[moved, 1:3] - a[:, None]
-        u = (inner[..., 0] * (c - a)[:, None, 1] - inner[..., 1] * (c - a)[:, None, 0]) / det
-        w = ((b - a)[:, None, 0] * inner[..., 1] - (b - a)[:, None, 1] * inner[..., 0]) / det
+        d, e, inner = (b - a)[:, None], (c - a)[:, None], cp[moved, 1:3] - a[:, None]
+        det = cross(d, e)
+        u, w = cross(inner, e) / det, cross(d, inner) / det  # (M, 2): inner = a + u d + w e
         na, nb, nc = (v[t[:, k]] for k in range(3))
         cp[moved, 1:3] = na[:, None] + u[..., None] * (nb - na)[:, None] + w[..., None] * (nc - na)[:, None]
         ends = np.asarray(mesh.curve_endpoints, np.int64)[moved]

@@ -749,23 +749,32 @@ def roundtrip_mesh(mesh: Mesh, bits: int) -> Mesh:
     is tried before the next grid. Raises ``MeshError`` if even the raw encoding fails, i.e. ``mesh`` itself is
     invalid.
     """
+    valid = None  # whether ``mesh`` itself is valid, checked once, when a grid first fails: an invalid one is refused
     for step in _ladder(bits):
         res = _try(mesh, step, level=1)
         if res is None and step is not None:
-            res = _try_on_grid(mesh, step)
+            valid = _is_valid(mesh) if valid is None else valid
+            res = _try_on_grid(mesh, step) if valid else None
         if res is not None:
             return res[1]
     raise MeshError("mesh cannot be stored: it fails validation even when stored losslessly")
 
 
+def _is_valid(mesh: Mesh) -> bool:
+    try:
+        mesh.validate()
+    except MeshError:
+        return False
+    return True
+
+
 def _try_on_grid(mesh: Mesh, bits: int):
-    """``_try`` on ``mesh`` rounded to the ``bits`` grid and triangulated again, or None (an invalid ``mesh``, two
-    vertices on one grid point, constraints that cross once rounded, or a mesh that fails a check)."""
+    """``_try`` on the valid ``mesh`` rounded to the ``bits`` grid and triangulated again, or None (two vertices on
+    one grid point, constraints that cross once rounded, or a mesh that fails a check)."""
     q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
     if _vertex_order(q) is None:
         return None
     try:
-        mesh.validate()  # an invalid mesh is refused, not repaired
         moved = retriangulate(mesh, _denormalise(q / float(2**bits - 1), mesh.domain))
     except MeshError:
         return None

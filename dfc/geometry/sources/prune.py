@@ -34,7 +34,7 @@ import numpy as np
 
 from ...errors import InputError
 from .. import bezier
-from ..curves import DEGREE_LINE, Curves
+from ..curves import DEGREE_LINE, Curves, fit_curves_to_domain
 
 __all__ = ["Pruned", "curve_bytes", "curve_gains", "prune_curves", "BYTES_PER_PIECE", "BYTES_PER_VERTEX",
            "CURVE_SHARE", "MIN_GAIN_PER_BYTE", "RAMP", "SPACING"]
@@ -113,7 +113,7 @@ def curve_gains(pixels: np.ndarray, curves: Curves, edge: float) -> np.ndarray:
     """
     values = _measure_space(pixels)
     H, W, C = values.shape
-    curves = _on_image(curves, W, H)
+    curves = fit_curves_to_domain(curves, (0.0, 0.0, float(W), float(H)))
     half = max(float(edge), 2.0)
     s = np.arange(-half, half + STEP / 2, STEP)
     step = np.clip(s + 0.5, 0.0, 1.0)
@@ -154,7 +154,7 @@ def curve_bytes(curves: Curves, edge: float, domain_px: tuple[int, int] | None =
     curved piece's apex, one every ``edge`` along a line) and ``BYTES_PER_PIECE`` per piece. ``domain_px``: (W, H)
     of the image the curves are scaled onto (default: the curves' own domain)."""
     if domain_px is not None:
-        curves = _on_image(curves, *domain_px)
+        curves = fit_curves_to_domain(curves, (0.0, 0.0, *map(float, domain_px)))
     cost = np.zeros(curves.n_curves)
     if not len(curves):
         return cost
@@ -225,13 +225,3 @@ def _subset(curves: Curves, kept: np.ndarray) -> Curves:
     return Curves(curves.domain, curves.control_points[pieces], curves.degree[pieces], new[curves.curve[pieces]],
                   curves.t_range[pieces], [n for n, k in zip(curves.names, kept) if k],
                   [sd for sd, k in zip(curves.sides, kept) if k] if curves.sides else [], curves.source)
-
-
-def _on_image(curves: Curves, width: int, height: int) -> Curves:
-    """``curves`` scaled from their domain onto ``[0, width] × [0, height]``."""
-    x0, y0, x1, y1 = curves.domain
-    if (x0, y0, x1, y1) == (0.0, 0.0, float(width), float(height)):
-        return curves
-    cp = (curves.control_points - [x0, y0]) * [width / (x1 - x0), height / (y1 - y0)]
-    return Curves((0.0, 0.0, float(width), float(height)), cp, curves.degree, curves.curve, curves.t_range,
-                  curves.names, curves.sides, curves.source)
