@@ -27,11 +27,11 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import encode_model, encoder_info, load, loads
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
-from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES, decoder_hidden, image_mesh_size,
-                   mesh_size_set, sample_mesh_size, sized_mesh)
+from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES, SHORT_FIT_HIDDEN, decoder_hidden,
+                   image_mesh_size, mesh_size_set, sample_mesh_size, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
-from .train.fit import BATCH_SIZE, DEFAULT_STEPS, IMAGE_STEPS
+from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
 
 __all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "default_steps", "encode_bands",
            "encode_fem", "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings",
@@ -132,10 +132,12 @@ def fem_settings(settings: EncodeSettings) -> EncodeSettings:
 
 def _image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> EncodeSettings:
     """``settings`` with the decoder width of an image of ``n_values`` numbers (``dfc.rate.decoder_hidden``; under a
-    byte target, within its ``dfc.rate.DECODER_SHARE``), never wider than ``settings.hidden``."""
+    byte target, within its ``dfc.rate.DECODER_SHARE``; a fit of fewer than ``DECODER_LR_MIN_STEPS`` steps up to
+    ``dfc.rate.SHORT_FIT_HIDDEN``), never wider than ``settings.hidden``."""
     budget = None if settings.target_bytes is None else DECODER_SHARE * settings.target_bytes
+    short = (settings.steps or IMAGE_STEPS) < DECODER_LR_MIN_STEPS
     width = decoder_hidden(n_values, budget, inputs=settings.dim, outputs=n_channels, layers=settings.layers,
-                           weight_bits=settings.weight_bits)
+                           weight_bits=settings.weight_bits, widest=SHORT_FIT_HIDDEN if short else None)
     return replace(settings, hidden=min(settings.hidden, width))
 
 

@@ -20,9 +20,9 @@ from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
 __all__ = ["DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL", "FILL_CARRY_POINTS", "FILL_RETRIES",
-           "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "TARGET_BYTES_PROBES", "build_mesh",
-           "decoder_hidden", "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points",
-           "sample_mesh_size", "sized_mesh"]
+           "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "SHORT_FIT_HIDDEN",
+           "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size", "mesh_for_bytes",
+           "mesh_size_set", "refinement_points", "sample_mesh_size", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -49,9 +49,13 @@ FEATURE_BITS_FALLBACK = (8, 6)
 """Feature bits an encode with the default bits (``dfc.codec.EncodeSettings.feature_bits`` None) tries, in order,
 when its byte target is too small for the smallest mesh with ``dfc.field.quantize.DEFAULT_FEATURE_BITS`` (with a
 note; CHANGELOG.md, "Small byte targets keep working")."""
-DECODER_HIDDEN = (8, 64)
-"""Narrowest and widest hidden layers ``decoder_hidden`` gives (64: the paper's decoder). A 32-wide cap converges
-more slowly on short HDR fits, so it is not the default (CHANGELOG.md, "Measured and not made default")."""
+DECODER_HIDDEN = (8, 32)
+"""Narrowest and widest hidden layers ``decoder_hidden`` gives an image. 32, not the paper's 64: at the default 3,000
+steps a 32-wide decoder gives smaller files at about the same PSNR on real content, and fits faster (CHANGELOG.md,
+"Image decoders 32 wide")."""
+SHORT_FIT_HIDDEN = 64
+"""The widest decoder of an image fit of fewer than ``dfc.train.fit.DECODER_LR_MIN_STEPS`` steps, where a 32-wide one
+converges too slowly (the README sample, 100 steps: 42.6 dB at width 64, 28.0 at 32)."""
 DECODER_SHARE = 0.15
 """Under a byte target the decoder's weights take at most this share of it (``decoder_hidden``); the rest buys
 triangles (CHANGELOG.md, "The decoder's share of a byte target"; docs/results.md, "Rate and quality levers")."""
@@ -219,13 +223,14 @@ def image_mesh_size(curves: Curves, settings, n_pixels: int):
 
 
 def decoder_hidden(n_values: int, budget: float | None = None, *, inputs: int = 5, outputs: int = 3,
-                   layers: int = 2, weight_bits: int | None = 8) -> int:
+                   layers: int = 2, weight_bits: int | None = 8, widest: int | None = None) -> int:
     """Width of the decoder's hidden layers for an input of ``n_values`` numbers (pixels × channels): the power of
-    two nearest below √n / 2, within ``DECODER_HIDDEN`` — 64 from about 150 × 150 RGB pixels up, 32 for 64 × 64,
-    8 for a handful of pixels, whose file would otherwise be mostly decoder weights (9 KB at width 64). With a
+    two nearest below √n / 2, within ``DECODER_HIDDEN`` — 32 from about 37 × 37 RGB pixels up, 16 for 20 × 20,
+    8 for a handful of pixels, whose file would otherwise be mostly decoder weights (1.3 KB at width 32). With a
     ``budget`` in bytes, halved (not below the narrowest) until the weight matrices (``inputs`` features,
-    ``layers`` hidden layers, ``outputs`` channels; ``weight_bits`` each, None: float16) fit in it."""
-    lo, hi = DECODER_HIDDEN
+    ``layers`` hidden layers, ``outputs`` channels; ``weight_bits`` each, None: float16) fit in it. ``widest``
+    replaces the widest of ``DECODER_HIDDEN``."""
+    lo, hi = DECODER_HIDDEN[0], widest or DECODER_HIDDEN[1]
     width = min(hi, max(lo, 1 << max(0, int(math.floor(math.log2(max(1.0, math.sqrt(n_values) / 2)))))))
     bits = weight_bits or 16
     while budget is not None and width > lo and \

@@ -25,15 +25,17 @@ from torch.profiler import record_function
 from ..field.quantize import DEFAULT_FEATURE_BITS, clip_feature_outliers
 from .distributed import parallel, rank_seed, world
 
-__all__ = ["BACKWARD", "BETAS", "FOREACH_DEVICES", "FORWARD", "Loss", "OPTIMISER", "SAMPLE", "Sampler", "Schedule",
-           "train"]
+__all__ = ["BACKWARD", "BETAS", "FOREACH_DEVICES", "FORWARD", "FUSED_DEVICES", "Loss", "OPTIMISER", "SAMPLE", "Sampler",
+           "Schedule", "train"]
 
 BETAS = (0.9, 0.99)
 """Adam's betas (docs/design.md §6)."""
 FOREACH_DEVICES = ("cuda",)
-"""Devices whose Adam updates all parameters with ``foreach`` kernels; elsewhere (the CPU) it updates them one tensor
-at a time: the same values to the bit, in fewer calls for a fit's few tensors (CHANGELOG.md, "Faster fit steps").
-Not fused: the fused update's values differ in the last bits, and a fit's outcome with them (CHANGELOG.md)."""
+"""Devices whose Adam updates all parameters with ``foreach`` kernels."""
+FUSED_DEVICES = ("cpu",)
+"""Devices whose Adam runs fused (one kernel per tensor): on the CPU a third of the time of the one-tensor-at-a-time
+update for a fit's few tensors, the same values to float rounding (CHANGELOG.md, "Faster CPU fit steps"). Elsewhere
+(not in either) Adam updates one tensor at a time."""
 SAMPLE, FORWARD, BACKWARD, OPTIMISER = "dfc.sample", "dfc.forward", "dfc.backward", "dfc.optimiser"
 """``torch.profiler`` labels of a step's parts: drawing the batch, the loss's forward pass, its backward pass and the
 optimiser step (``dfc benchmark encode`` breaks steps down by them; free when no profiler runs)."""
@@ -122,7 +124,8 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
         start, length = (step, n) if schedule.restart_stages else (0, total)
         decay = schedule.decay(length)
         optimizer = torch.optim.Adam(_groups(model, schedule.decoder_lr), lr=schedule.lr, betas=schedule.betas,
-                                     foreach=device.type in FOREACH_DEVICES)
+                                     foreach=device.type in FOREACH_DEVICES and device.type not in FUSED_DEVICES,
+                                     fused=device.type in FUSED_DEVICES)
         net = parallel(model)
         for _ in range(n):
             if step == qat_from:

@@ -6,7 +6,7 @@ import torch
 
 from dfc.errors import FormatError
 from dfc.field.feature_field import FeatureField
-from dfc.field.mlp import MLP, OneBlob
+from dfc.field.mlp import MLP, OneBlob, _ReluMLP
 from dfc.field.model import FieldModel
 from dfc.field.quantize import dequantize_weights, fake_quantize_weights, quantize_weights
 from dfc.geometry.curves import Curves, elevate
@@ -34,21 +34,31 @@ def test_mlp_shapes(layers, activation):
     assert sum(isinstance(mod, act) for mod in m.net) == layers
 
 
-@pytest.mark.parametrize("activation", ["relu", "tanh"])
-def test_mlp_values_and_gradients_are_those_of_the_plain_layers(activation):
-    """The in-place ReLU gives the values and gradients of the layers applied one after another."""
+@pytest.mark.parametrize("activation,n", [("relu", 10), ("relu", 5000), ("tanh", 50)])
+def test_mlp_values_and_gradients_are_those_of_the_plain_layers(activation, n):
+    """The decoder (for ReLU its own forward and backward, whose narrow products run transposed) gives the values
+    and gradients of the layers applied one after another, to float32 rounding."""
     m = MLP(5, 3, hidden=16, layers=2, activation=activation)
     act = torch.relu if activation == "relu" else torch.tanh
-    x = torch.randn(50, 5, requires_grad=True)
+    x = torch.randn(n, 5, requires_grad=True)
     x_ref = x.detach().clone().requires_grad_(True)
     lin = m.linears()
     y_ref = lin[2](act(lin[1](act(lin[0](x_ref)))))
     grads_ref = torch.autograd.grad(y_ref.square().sum(), [x_ref, *m.parameters()])
     y = m(x)
     grads = torch.autograd.grad(y.square().sum(), [x, *m.parameters()])
-    assert torch.equal(y, y_ref)
+    torch.testing.assert_close(y, y_ref, rtol=1e-5, atol=1e-6)
     for a, b in zip(grads, grads_ref):
-        assert torch.equal(a, b)
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-5 * float(b.abs().max()))
+
+
+def test_relu_mlp_gradient_is_the_derivative():
+    """The ReLU decoder's own backward against finite differences (float64, inputs away from the kinks)."""
+    m = MLP(5, 3, hidden=8, layers=2).double()
+    x = torch.randn(40, 5, dtype=torch.float64, requires_grad=True)
+    params = [p.detach().clone().requires_grad_(True) for p in (*(lin.weight for lin in m.linears()),
+                                                                *(lin.bias for lin in m.linears()))]
+    assert torch.autograd.gradcheck(lambda x, *p: _ReluMLP.apply(x, *p), (x, *params))
 
 
 def test_mlp_rejects_bad_arguments():

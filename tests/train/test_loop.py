@@ -27,8 +27,9 @@ def test_fit_is_deterministic(scene_mesh):
         assert na == nb and torch.equal(pa, pb), na
 
 
-def test_per_tensor_adam_equals_the_foreach_update(scene_mesh, monkeypatch):
-    """The CPU's per-tensor Adam (``FOREACH_DEVICES``) gives the foreach update's values to the bit."""
+def test_fused_adam_equals_the_per_tensor_and_foreach_updates(scene_mesh, monkeypatch):
+    """The CPU's fused Adam (``FUSED_DEVICES``) gives the per-tensor update's values to float rounding, and the
+    per-tensor update the foreach update's (``FOREACH_DEVICES``) to the bit."""
     import dfc.train.loop as loop
 
     image = scene_image(spp=1)
@@ -39,10 +40,18 @@ def test_per_tensor_adam_equals_the_foreach_update(scene_mesh, monkeypatch):
             final_lr=1e-3)
         return model.state_dict()
 
+    fused = run()
+    monkeypatch.setattr(loop, "FUSED_DEVICES", ())
     per_tensor = run()
     monkeypatch.setattr(loop, "FOREACH_DEVICES", ("cpu", "cuda"))
-    for (name, a), b in zip(per_tensor.items(), run().values()):
-        assert torch.equal(a, b), name
+    foreach = run()
+    for name, a in fused.items():
+        b = per_tensor[name]
+        if b.is_floating_point():
+            torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-4 * float(b.abs().max()))
+        else:
+            assert torch.equal(a, b), name
+        assert torch.equal(b, foreach[name]), name
 
 
 def test_fit_reduces_loss_and_reports(scene_mesh):
