@@ -37,7 +37,7 @@ from .mesh import Mesh, min_side_distance
 from .plane import cross
 from .tolerances import tol
 
-__all__ = ["triangulate", "constrained_delaunay", "retriangulate", "DEFAULT_TRIANGLES", "GRID_SNAP",
+__all__ = ["triangulate", "constrained_delaunay", "nominal_edge", "retriangulate", "DEFAULT_TRIANGLES", "GRID_SNAP",
            "STEINER_STEPS_PER_EDGE"]
 
 DEFAULT_TRIANGLES = 2000
@@ -308,15 +308,22 @@ def _check_sizes(max_area, edge_length, grading, max_triangles, min_angle) -> No
         raise MeshError(f"triangulate: min_angle must be in [0, {_MAX_MIN_ANGLE}] degrees, got {min_angle!r}")
 
 
+def nominal_edge(domain, n_triangles: int | None = None) -> float:
+    """Nominal edge length of a mesh of ``n_triangles`` (None: ``DEFAULT_TRIANGLES``) over the rectangle ``domain``
+    (x0, y0, x1, y1): the edge of an equilateral triangle of the domain's area over ``n_triangles``."""
+    x0, y0, x1, y1 = domain
+    return float(np.sqrt((x1 - x0) * (y1 - y0) / (n_triangles or DEFAULT_TRIANGLES) / _EQUILATERAL))
+
+
 def _line_length(domain, max_area, edge_length, max_triangles) -> float:
     """Longest line piece kept whole: the nominal edge length of the size target (an equilateral triangle of
-    ``max_area``, or of the domain's area over ``max_triangles`` / ``DEFAULT_TRIANGLES``). A line piece is one
-    mesh edge, so a longer one would leave the field along it only its two end vertices' features."""
+    ``max_area``, or ``nominal_edge`` of ``max_triangles``). A line piece is one mesh edge, so a longer one would
+    leave the field along it only its two end vertices' features."""
     if edge_length is not None:
         return float(edge_length)
-    x0, y0, x1, y1 = domain
-    area = max_area or (x1 - x0) * (y1 - y0) / (max_triangles or DEFAULT_TRIANGLES)
-    return float(np.sqrt(area / _EQUILATERAL))
+    if max_area:
+        return float(np.sqrt(max_area / _EQUILATERAL))
+    return nominal_edge(domain, max_triangles)
 
 
 def _size_target(domain, max_area, edge_length, max_triangles, floor_count, n_curved) -> tuple[float, int]:

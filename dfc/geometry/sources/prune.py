@@ -168,13 +168,6 @@ def curve_bytes(curves: Curves, edge: float, domain_px: tuple[int, int] | None =
     return cost + BYTES_PER_VERTEX * starts  # each curve's first vertex
 
 
-def nominal_edge(width: int, height: int, n_triangles: int) -> float:
-    """Nominal edge length (px) of a mesh of ``n_triangles`` equilateral triangles over a ``width`` × ``height``
-    image."""
-    area = width * height / max(1, n_triangles)
-    return float(np.sqrt(4.0 * area / np.sqrt(3.0)))
-
-
 def prune_curves(pixels: np.ndarray, curves: Curves, *, n_triangles: int | None = None,
                  target_bytes: int | None = None) -> Pruned:
     """The curves of ``curves`` that earn their bytes on the image ``pixels`` (H, W, C), for a mesh of about
@@ -185,7 +178,7 @@ def prune_curves(pixels: np.ndarray, curves: Curves, *, n_triangles: int | None 
     below 1.
     """
     from ...rate import PIXELS_PER_TRIANGLE
-    from ..triangulate import DEFAULT_TRIANGLES
+    from ..triangulate import DEFAULT_TRIANGLES, nominal_edge
 
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.ndim == 2:
@@ -201,7 +194,7 @@ def prune_curves(pixels: np.ndarray, curves: Curves, *, n_triangles: int | None 
     H, W = pixels.shape[:2]
     if n_triangles is None:
         n_triangles = max(2, min(DEFAULT_TRIANGLES, W * H // PIXELS_PER_TRIANGLE))
-    edge = nominal_edge(W, H, n_triangles)
+    edge = nominal_edge((0.0, 0.0, float(W), float(H)), n_triangles)  # px
     gain = curve_gains(pixels, curves, edge)
     cost = curve_bytes(curves, edge, (W, H))
     ratio = gain / np.maximum(cost, 1e-9)
