@@ -35,7 +35,7 @@ from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_ST
 
 __all__ = ["FEM_TARGET_PSNR", "EncodeReport", "EncodeSettings", "check_domain", "default_steps", "encode_bands",
            "encode_fem", "encode_frames", "encode_image", "encode_samples", "encoder_info", "fem_settings",
-           "heldout_split", "load", "loads", "sample_piece_length", "sample_steps"]
+           "heldout_split", "image_decoder", "load", "loads", "sample_piece_length", "sample_steps"]
 
 QUERY_BLOCK = 1 << 18
 """Points evaluated per call when measuring a decoded file at scattered positions."""
@@ -130,7 +130,7 @@ def fem_settings(settings: EncodeSettings) -> EncodeSettings:
     return settings
 
 
-def _image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> EncodeSettings:
+def image_decoder(settings: EncodeSettings, n_values: int, n_channels: int) -> EncodeSettings:
     """``settings`` with the decoder width of an image of ``n_values`` numbers (``dfc.rate.decoder_hidden``; under a
     byte target, within its ``dfc.rate.DECODER_SHARE``; a fit of fewer than ``DECODER_LR_MIN_STEPS`` steps up to
     ``dfc.rate.SHORT_FIT_HIDDEN``), never wider than ``settings.hidden``."""
@@ -226,7 +226,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     clock = time.perf_counter()
     settings, mesh = image_mesh_size(curves, settings, w * h)  # small images: a mesh and decoder sized to them
     sizing_s = time.perf_counter() - clock
-    settings = replace(_image_decoder(settings, pixels.size, c), refine=refine_rounds(settings))
+    settings = replace(image_decoder(settings, pixels.size, c), refine=refine_rounds(settings))
 
     def residual(m):  # squared error at the pixel centres (those a curve changes left out): refinement
         centres = window_points(curves.domain, w, h)
@@ -283,7 +283,7 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     h, w = source.height, source.width
     channels = list(source.channels)
     curves = check_domain(curves, w, h, fit_curves)
-    settings = _image_decoder(settings, w * h * len(channels), len(channels))
+    settings = image_decoder(settings, w * h * len(channels), len(channels))
     clock = time.perf_counter()
     mesh = _on_rank0(lambda: sized_mesh(curves, settings, channels)[1])
     seconds = {"mesh_s": time.perf_counter() - clock}

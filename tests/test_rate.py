@@ -111,17 +111,17 @@ def test_the_decoder_narrows_to_its_share_of_a_byte_target():
 def test_image_decoders_are_32_wide_and_short_fits_64(one_thread):
     """The width rule of an image encode: 32 at the default steps and from DECODER_LR_MIN_STEPS up, 64 below (a
     32-wide decoder converges too slowly there); an explicit ``hidden`` still caps it."""
-    from dfc.codec import _image_decoder
+    from dfc.codec import image_decoder
     from dfc.rate import DECODER_HIDDEN, SHORT_FIT_HIDDEN
     from dfc.train.fit import DECODER_LR_MIN_STEPS
 
     n = 256 * 256 * 3
     assert DECODER_HIDDEN[1] == 32 < SHORT_FIT_HIDDEN == 64
-    assert _image_decoder(EncodeSettings(), n, 3).hidden == 32
-    assert _image_decoder(EncodeSettings(steps=DECODER_LR_MIN_STEPS), n, 3).hidden == 32
-    assert _image_decoder(EncodeSettings(steps=DECODER_LR_MIN_STEPS - 1), n, 3).hidden == 64
-    assert _image_decoder(EncodeSettings(steps=100, hidden=16), n, 3).hidden == 16
-    assert _image_decoder(EncodeSettings(steps=100, target_bytes=4_000), n, 3).hidden == 16  # its share of a target
+    assert image_decoder(EncodeSettings(), n, 3).hidden == 32
+    assert image_decoder(EncodeSettings(steps=DECODER_LR_MIN_STEPS), n, 3).hidden == 32
+    assert image_decoder(EncodeSettings(steps=DECODER_LR_MIN_STEPS - 1), n, 3).hidden == 64
+    assert image_decoder(EncodeSettings(steps=100, hidden=16), n, 3).hidden == 16
+    assert image_decoder(EncodeSettings(steps=100, target_bytes=4_000), n, 3).hidden == 16  # its share of a target
 
 
 @pytest.mark.slow

@@ -14,6 +14,8 @@ ignores ``t``.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 import torch
 import torch.nn.functional as nnf
@@ -25,7 +27,7 @@ from .interp import Interpolator
 from .layout import build_layout
 from .locate import PointLocator
 
-__all__ = ["FeatureField", "INIT_RANGE", "weighted_rows"]
+__all__ = ["FeatureField", "INIT_RANGE", "PackedQuery", "pack_query", "packed_rows", "weighted_rows"]
 
 INIT_RANGE = 2e-3
 """Features start uniform in ±INIT_RANGE (paper §5 and the official code)."""
@@ -54,6 +56,52 @@ def weighted_rows(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> to
     if idx.device.type == "cpu" and not w.requires_grad and table.requires_grad and torch.is_grad_enabled():
         return _WeightedRows.apply(table, idx, w)
     return nnf.embedding_bag(idx, table, per_sample_weights=w, mode="sum")
+
+
+class PackedQuery(NamedTuple):
+    """A precomputed query without its zero-weight slots (most points use three of the seven): ``idx`` (M,) int64
+    bank rows and ``w`` (M,) float32 weights of every point's nonzero slots, point after point in slot order;
+    ``offsets`` (N,) int64 each point's first slot; ``point`` (M,) int64 each slot's point. ``packed_rows`` of it
+    equals ``weighted_rows`` of the full query."""
+
+    idx: torch.Tensor
+    w: torch.Tensor
+    offsets: torch.Tensor
+    point: torch.Tensor
+
+
+def pack_query(idx: torch.Tensor, w: torch.Tensor) -> PackedQuery:
+    """The ``PackedQuery`` of a query ``idx`` (N, k) int64, ``w`` (N, k)."""
+    keep = torch.nonzero(w.reshape(-1) != 0).squeeze(1)
+    counts = (w != 0).sum(1)
+    return PackedQuery(idx.reshape(-1).index_select(0, keep), w.reshape(-1).index_select(0, keep),
+                       torch.cumsum(counts, 0) - counts,
+                       torch.repeat_interleave(torch.arange(len(idx), device=idx.device), counts))
+
+
+class _PackedRows(torch.autograd.Function):
+    """``embedding_bag`` sums of a ``PackedQuery``'s weighted rows, whose backward to the table is one ``index_add_``
+    of the nonzero slots' rows (the weights get no gradient)."""
+
+    @staticmethod
+    def forward(ctx, table, idx, w, offsets, point):
+        ctx.save_for_backward(idx, w, point)
+        ctx.rows = table.shape[0]
+        return nnf.embedding_bag(idx, table, offsets, mode="sum", per_sample_weights=w)
+
+    @staticmethod
+    def backward(ctx, grad):
+        idx, w, point = ctx.saved_tensors
+        rows = grad.index_select(0, point) * w[:, None]
+        return grad.new_zeros(ctx.rows, grad.shape[1]).index_add_(0, idx, rows), None, None, None, None
+
+
+def packed_rows(table: torch.Tensor, q: PackedQuery) -> torch.Tensor:
+    """(N, D) sums of ``table`` (R, D) rows weighted as the packed query ``q`` says (``weighted_rows`` of the full
+    query); differentiable with respect to ``table`` only (on the CPU through ``_PackedRows``)."""
+    if q.idx.device.type == "cpu" and table.requires_grad and torch.is_grad_enabled():
+        return _PackedRows.apply(table, q.idx, q.w, q.offsets, q.point)
+    return nnf.embedding_bag(q.idx, table, q.offsets, mode="sum", per_sample_weights=q.w)
 
 
 class FeatureField(nn.Module):

@@ -34,7 +34,7 @@ from torch.nn.utils import parametrize
 from torch.profiler import record_function
 
 from ..errors import DfcError, FormatError
-from .feature_field import weighted_rows
+from .feature_field import PackedQuery, packed_rows, weighted_rows
 from .mlp import ACTIVATIONS, MLP, OneBlob
 from .quantize import MAX_FEATURE_BITS, FakeFp16, FakeQuantize, FakeQuantizeWeights, check_weight_bits
 
@@ -100,12 +100,12 @@ class FieldModel(nn.Module):
         """Interpolated features (N, dim) at positions xy (N, 2) (and time t, if the field has a time axis)."""
         return self.field.features(xy, t)
 
-    def forward(self, xy: Tensor, t=None, *, query: tuple[Tensor, Tensor] | None = None) -> Tensor:
+    def forward(self, xy: Tensor, t=None, *, query: tuple[Tensor, Tensor] | PackedQuery | None = None) -> Tensor:
         """Signal values (N, C) float32 at positions xy (N, 2) in domain units (float64 with a ``value_map``).
 
         ``query`` : optional ``self.field.query(xy)`` computed beforehand — rows idx (N, k) int64 and
-        weights w (N, k) float32 of the bank's single slice — so that training can reuse point
-        location across steps; only for fields with one time slice.
+        weights w (N, k) float32 of the bank's single slice, or its ``PackedQuery`` — so that training can reuse
+        point location across steps; only for fields with one time slice.
         """
         if self._quantization is not None:  # evaluate each fake-quantised tensor once per call
             with parametrize.cached():
@@ -118,6 +118,8 @@ class FieldModel(nn.Module):
                 F = self.features(xy, t)
             elif self.field.bank.shape[0] != 1:
                 raise ValueError("a precomputed query needs a field with a single time slice")
+            elif isinstance(query, PackedQuery):
+                F = packed_rows(self.field.bank[0], query)
             else:
                 idx, w = query
                 F = weighted_rows(self.field.bank[0], idx, w)

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
+from torch.optim.adam import adam
 from torch.profiler import record_function
 
 from ..field.quantize import DEFAULT_FEATURE_BITS, clip_feature_outliers
@@ -123,9 +124,7 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
             generator = torch.Generator(device).manual_seed(rank_seed(seed + k, rank))
         start, length = (step, n) if schedule.restart_stages else (0, total)
         decay = schedule.decay(length)
-        optimizer = torch.optim.Adam(_groups(model, schedule.decoder_lr), lr=schedule.lr, betas=schedule.betas,
-                                     foreach=device.type in FOREACH_DEVICES and device.type not in FUSED_DEVICES,
-                                     fused=device.type in FUSED_DEVICES)
+        optimizer = _Adam(_groups(model, schedule.decoder_lr), schedule.betas, device)
         net = parallel(model)
         for _ in range(n):
             if step == qat_from:
@@ -133,13 +132,13 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
                     clip_feature_outliers(model.field.bank)
                 model.quantization = schedule.quantization()
                 net = parallel(model, sync=False)
-            for group in optimizer.param_groups:
+            for group in optimizer.groups:
                 group["lr"] = group["factor"] * schedule.lr * decay ** (step - start)
             with record_function(SAMPLE):
                 batch = sampler(step, generator)
             with record_function(FORWARD):
                 value, metrics = loss(net, batch)
-            optimizer.zero_grad(set_to_none=True)
+            optimizer.zero_grad()
             with record_function(BACKWARD):
                 value.backward()
             with record_function(OPTIMISER):
@@ -151,6 +150,38 @@ def train(model: nn.Module, loss: Loss, sampler: Sampler, schedule: Schedule, *,
             step += 1
     model.eval()
     return {name: torch.stack(values).cpu().tolist() for name, values in history.items()}
+
+
+class _Adam:
+    """Adam (no weight decay, eps 1e-8) over parameter groups ``[{"params": [...], "lr": float, …}]``, each step
+    the update ``torch.optim.Adam`` makes (``torch.optim.adam.adam``: fused on ``FUSED_DEVICES``, foreach on
+    ``FOREACH_DEVICES``, else one tensor at a time). Not ``torch.optim.Adam`` itself: its first use imports
+    ``torch._dynamo``, about a second of every encode's fit on the CPU (CHANGELOG.md, "Fit steps slice laid-out
+    blocks")."""
+
+    def __init__(self, groups: list[dict], betas: tuple[float, float], device: torch.device):
+        self.groups, self.betas = groups, betas
+        self.fused = device.type in FUSED_DEVICES
+        self.foreach = device.type in FOREACH_DEVICES and not self.fused
+        self.state: dict[Tensor, tuple[Tensor, Tensor, Tensor]] = {}
+
+    def zero_grad(self) -> None:
+        for group in self.groups:
+            for p in group["params"]:
+                p.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        for group in self.groups:
+            params = [p for p in group["params"] if p.grad is not None]
+            for p in params:
+                if p not in self.state:  # step count, first and second moments
+                    step = torch.zeros((), dtype=torch.float32, device=p.device if self.fused else "cpu")
+                    self.state[p] = (step, torch.zeros_like(p), torch.zeros_like(p))
+            steps, avgs, squares = zip(*(self.state[p] for p in params)) if params else ((), (), ())
+            adam(params, [p.grad for p in params], list(avgs), list(squares), [], list(steps), foreach=self.foreach,
+                 fused=self.fused, amsgrad=False, beta1=self.betas[0], beta2=self.betas[1], lr=group["lr"],
+                 weight_decay=0.0, eps=1e-8, maximize=False)
 
 
 def _groups(model: nn.Module, decoder_lr: float) -> list[dict]:

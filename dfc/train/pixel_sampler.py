@@ -5,8 +5,12 @@ Pixels near a discontinuity (``filtered``: those the kernel of a pixel it crosse
 ``dfc.pixel_filter.TRAIN_POINTS`` quadrature points, the lattice shifted at random per pixel (exact in
 expectation); every other pixel at one point — its centre, or for ``box`` a uniformly jittered point in it, as
 the unfiltered fit samples: there the field is smooth and a point stands for the filtered value to first order.
-``sets`` draws of all points are located once (``query``) and reused in turn, one per epoch; each epoch's point
-indices are laid out once, in its order, so that a step only slices them and gathers its points.
+``sets`` draws of all points are made and located once (``query``), each in its own random order of the pixels with a
+pixel's points together, and reused in turn, one per epoch. An epoch visits its set in chunks of consecutive pixels
+(``batch_size / CHUNKS_PER_BATCH``) taken in a fresh random order, copied ``BLOCK_CHUNKS`` at a time into one
+contiguous block, so that a step slices its batch instead of gathering scattered rows (on the CPU those gathers
+are mostly cache misses). A point's located query is kept without its zero-weight slots
+(``dfc.field.feature_field.PackedQuery``).
 
 A batch is ``(xy (N, 2) float64, target (B, C) float32, PixelWeights)``: ``dfc.train.losses.DataLoss`` sums the
 model's values at the N points into the B pixels.
@@ -20,99 +24,144 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from ..field.feature_field import PackedQuery, pack_query
 from ..pixel_filter import TRAIN_POINTS, PixelFilter
-from .samplers import QUERY_CHUNK, _Epochs
+from .samplers import QUERY_CHUNK
 
-__all__ = ["PixelWeights", "filtered_sampler"]
+__all__ = ["BLOCK_CHUNKS", "CHUNKS_PER_BATCH", "PixelWeights", "filtered_sampler"]
+
+CHUNKS_PER_BATCH = 8
+"""A batch is drawn as this many chunks of consecutive pixels of a set's random order (module notes)."""
+BLOCK_CHUNKS = 64
+"""Chunks laid out together (``_Block``): a step slices its batch out of a block; bounds the block's memory."""
 
 
 @dataclass
 class PixelWeights:
     """Which pixel of the batch each point belongs to (``row`` (N,) int64) and its weight (``weight`` (N,)), plus
-    the points' precomputed ``field.query`` (or None)."""
+    the points' precomputed ``field.query`` as a ``dfc.field.feature_field.PackedQuery`` (or None)."""
 
     row: Tensor
     weight: Tensor
     query: tuple | None = None
 
 
+class _Block:
+    """Consecutive chunks of a set laid out contiguously, in the epoch's order: ``xy`` (P, 2), ``weight`` (P,) and
+    ``row`` (P,) (each point's pixel, as its position in the block) of the points, ``values`` (Q, C) of the pixels,
+    ``bounds`` (Q + 1,) NumPy the first point of each pixel; with located queries ``idx``, ``w`` (S,) of the slots,
+    ``offsets`` (P,) each point's first slot, ``point`` (S,) each slot's point, ``slots`` (P + 1,) NumPy. Built
+    from the pixels' point counts ``counts`` (Q,) and the points' slot counts ``slot_counts`` (P,) (NumPy)."""
+
+    def __init__(self, tables: dict, counts: np.ndarray, slot_counts: np.ndarray | None, device):
+        self.__dict__.update(tables)
+        self.pixels = len(counts)
+        self.row = _owner(counts, device)
+        self.bounds = np.concatenate([[0], np.cumsum(counts)])
+        if slot_counts is not None:
+            self.slots = np.concatenate([[0], np.cumsum(slot_counts)])
+            self.offsets = torch.from_numpy(self.slots[:-1]).to(device)
+            self.point = _owner(slot_counts, device)
+
+
+def _owner(counts: np.ndarray, device) -> Tensor:
+    """(counts.sum(),) int64: ``i`` repeated ``counts[i]`` times (NumPy's repeat: on the CPU several times as fast
+    as ``torch.repeat_interleave``)."""
+    return torch.from_numpy(np.repeat(np.arange(len(counts)), counts)).to(device)
+
+
 class _FilteredPixels:
     def __init__(self, pixels: Tensor, domain, batch_size: int, f: PixelFilter, filtered: np.ndarray,
                  query, sets: int, seed: int):
         h, w, c = pixels.shape
-        self.values = pixels.reshape(-1, c)
-        self.batch_size = batch_size
-        self.epochs = _Epochs(h * w)
+        n = h * w
+        self.n, self.sets, self.batch_size = n, sets, batch_size
+        self.chunk = max(1, batch_size // CHUNKS_PER_BATCH)
         count = np.where(filtered.ravel(), TRAIN_POINTS if f.mixes else 1, 1)
         if f.name == "box" and f.param is not None and f.param ** 2 <= TRAIN_POINTS:
             count[filtered.ravel()] = int(f.param) ** 2
-        self.count = torch.from_numpy(count)
-        self.start = torch.from_numpy(np.cumsum(count) - count)
         self.total = int(count.sum())
         rng = np.random.default_rng(seed)
         x0, y0, x1, y1 = domain
         size = np.array([(x1 - x0) / w, (y1 - y0) / h])
-        idx = np.arange(h * w)
-        centre = np.stack([idx % w + 0.5, idx // w + 0.5], axis=1)
-        xy, weight = [], []
-        for _ in range(sets):
-            pts = np.repeat(centre, count, axis=0)
+        values = pixels.reshape(-1, c)
+        xy, weight, counts, laid = [], [], [], []
+        for _ in range(sets):  # each set in its own random pixel order, a pixel's points together
+            order = rng.permutation(n)
+            k = count[order]
+            mixed = filtered.ravel()[order]
+            start = np.cumsum(k) - k
+            pts = np.repeat(np.stack([order % w + 0.5, order // w + 0.5], axis=1), k, axis=0)
             wt = np.ones(self.total)
-            mixed = np.flatnonzero(filtered.ravel())
-            plain = np.flatnonzero(~filtered.ravel())
             if f.name == "box":  # unfiltered pixels: a jittered point, as the box fit always sampled
-                pts[self.start.numpy()[plain]] += rng.random((len(plain), 2)) - 0.5
-            if len(mixed):
-                off, wm = f.nodes(TRAIN_POINTS, rng.random((len(mixed), 2)))
-                k = off.shape[1]
-                at = (self.start.numpy()[mixed][:, None] + np.arange(k)[None]).ravel()
+                pts[start[~mixed]] += rng.random((int((~mixed).sum()), 2)) - 0.5
+            if mixed.any():
+                off, wm = f.nodes(TRAIN_POINTS, rng.random((int(mixed.sum()), 2)))
+                at = (start[mixed][:, None] + np.arange(off.shape[1])[None]).ravel()
                 pts[at] += off.reshape(-1, 2)
                 wt[at] = wm.ravel()
-            pts = np.clip(pts * size + [x0, y0], [x0, y0], [x1, y1])
-            xy.append(pts)
+            xy.append(np.clip(pts * size + [x0, y0], [x0, y0], [x1, y1]))
             weight.append(wt)
+            counts.append(k)
+            laid.append(values.index_select(0, torch.from_numpy(order).to(values.device)))
         device = pixels.device
         self.xy = torch.from_numpy(np.concatenate(xy)).to(device)
         self.weight = torch.from_numpy(np.concatenate(weight)).to(device, torch.float32)
+        self.counts = np.concatenate(counts)  # (sets · n,) points of each pixel, set after set
+        self.bounds = np.concatenate([[0], np.cumsum(self.counts)])  # the first point of each
+        self.values = torch.cat(laid)
         self.cache = None
         if query is not None:
             with torch.no_grad():
                 parts = [query(self.xy[s:s + QUERY_CHUNK]) for s in range(0, len(self.xy), QUERY_CHUNK)]
-            self.cache = (torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
-        self.sets = sets
-        self.laid_out = None  # (epoch, its pixels, at, pixel_of, bounds): ``_prepare``
+            self.cache = pack_query(torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts]))
+            self.slots = np.concatenate([self.cache.offsets.cpu().numpy(), [len(self.cache.idx)]])
+            self.slot_counts = np.diff(self.slots)
+        self.epoch, self.chunks, self.block, self.offset = 0, [], None, 0
 
-    def _prepare(self, order: Tensor, epoch: int) -> None:
-        """Index the points of an epoch once: its pixels in ``order`` (n,) and, for the k-th point of the epoch,
-        its index in the located sets (``at``, of set ``(epoch - 1) % sets``) and the position of its pixel in
-        ``order`` (``pixel_of``); ``bounds`` (n + 1,) the first point of each position (a NumPy array: slicing by
-        it needs no device round trip)."""
-        order = order.cpu()
-        count = self.count.index_select(0, order)
-        ends = torch.cumsum(count, 0)
-        at = (torch.repeat_interleave(self.start.index_select(0, order) - (ends - count), count)
-              + ((epoch - 1) % self.sets) * self.total + torch.arange(self.total))
-        device = self.xy.device
-        self.laid_out = (epoch, order.to(device), at.to(device),
-                      torch.repeat_interleave(torch.arange(len(order)), count).to(device),
-                      np.concatenate([[0], ends.numpy()]))
+    def _next_block(self, generator: torch.Generator) -> None:
+        """Lay out the epoch's next ``BLOCK_CHUNKS`` chunks (a fresh epoch, of the next set, when its chunks are
+        used up: its chunks of ``chunk`` pixels in a random order drawn from ``generator``)."""
+        if not self.chunks:
+            n_chunks = -(-self.n // self.chunk)
+            self.chunks = torch.randperm(n_chunks, generator=generator, device=generator.device).tolist()
+            self.epoch += 1
+        taken, self.chunks = self.chunks[:BLOCK_CHUNKS], self.chunks[BLOCK_CHUNKS:]
+        s = (self.epoch - 1) % self.sets
+        pixels = [(s * self.n + c * self.chunk, s * self.n + min(self.n, (c + 1) * self.chunk)) for c in taken]
+        points = [(int(self.bounds[a]), int(self.bounds[b])) for a, b in pixels]
+
+        def cat(table, runs):
+            return (np.concatenate if isinstance(table, np.ndarray) else torch.cat)([table[a:b] for a, b in runs])
+
+        tables = {"xy": cat(self.xy, points), "weight": cat(self.weight, points), "values": cat(self.values, pixels)}
+        slot_counts = None
+        if self.cache is not None:
+            slots = [(int(self.slots[a]), int(self.slots[b])) for a, b in points]
+            tables.update(idx=cat(self.cache.idx, slots), w=cat(self.cache.w, slots))
+            slot_counts = cat(self.slot_counts, points)
+        self.block, self.offset = _Block(tables, cat(self.counts, pixels), slot_counts, self.xy.device), 0
 
     def __call__(self, step: int, generator: torch.Generator):
-        ats, rows, pixels, taken = [], [], [], 0
-        for order, a, b, epoch in self.epochs.runs(self.batch_size, generator):
-            if self.laid_out is None or self.laid_out[0] != epoch:
-                self._prepare(order, epoch)
-            _, pixel_order, at, pixel_of, bounds = self.laid_out
-            lo, hi = int(bounds[a]), int(bounds[b])
-            ats.append(at[lo:hi])
-            rows.append(pixel_of[lo:hi] + (taken - a))
-            pixels.append(pixel_order[a:b])
+        parts, taken, points, slots = [], 0, 0, 0
+        while taken < self.batch_size:
+            if self.block is None or self.offset == self.block.pixels:
+                self._next_block(generator)
+            k = self.block
+            a = self.offset
+            b = min(k.pixels, a + self.batch_size - taken)
+            lo, hi = int(k.bounds[a]), int(k.bounds[b])
+            part = [k.xy[lo:hi], k.values[a:b], k.row[lo:hi] + (taken - a), k.weight[lo:hi]]
+            if self.cache is not None:
+                sa, sb = int(k.slots[lo]), int(k.slots[hi])
+                part += [k.idx[sa:sb], k.w[sa:sb], k.offsets[lo:hi] + (slots - sa), k.point[sa:sb] + (points - lo)]
+                slots += sb - sa
+            parts.append(part)
             taken += b - a
-        at, row, pixel = (parts[0] if len(parts) == 1 else torch.cat(parts) for parts in (ats, rows, pixels))
-        # index_select: on the CPU about 3 times as fast as indexing with a tensor
-        query = None if self.cache is None else (self.cache[0].index_select(0, at), self.cache[1].index_select(0, at))
-        return (self.xy.index_select(0, at), self.values.index_select(0, pixel),
-                PixelWeights(row, self.weight.index_select(0, at), query))
+            points += hi - lo
+            self.offset = b
+        xy, values, row, weight, *query = (p[0] if len(parts) == 1 else torch.cat(p) for p in zip(*parts))
+        return xy, values, PixelWeights(row, weight, PackedQuery(*query) if query else None)
 
 
 def filtered_sampler(pixels: np.ndarray, domain, batch_size: int, pixel_filter: PixelFilter, filtered: np.ndarray,

@@ -138,6 +138,27 @@ def test_query_contract():
     torch.testing.assert_close(f, ref, atol=1e-5, rtol=1e-5)
 
 
+def test_packed_query_matches_full_query():
+    from dfc.field.feature_field import pack_query, packed_rows, weighted_rows
+
+    field = random_field(circle_mesh())
+    idx, w = field.query(torch.rand(3000, 2, dtype=torch.float64))
+    q = pack_query(idx, w)
+    assert len(q.idx) == int((w != 0).sum()) < w.numel()  # zero-weight slots dropped (most points use three)
+    assert torch.all(q.w != 0) and torch.equal(q.point[q.offsets], torch.arange(3000))
+    grad = torch.randn(3000, field.dim)
+    outs = []
+    for rows in (lambda t: weighted_rows(t, idx, w), lambda t: packed_rows(t, q)):
+        table = field.bank[0].detach().clone().requires_grad_(True)
+        out = rows(table)
+        out.backward(grad)
+        outs.append((out.detach(), table.grad))
+    torch.testing.assert_close(outs[1][0], outs[0][0], rtol=1e-6, atol=1e-7)
+    torch.testing.assert_close(outs[1][1], outs[0][1], rtol=1e-5, atol=1e-6)
+    with torch.no_grad():  # the evaluation path (no custom backward) gives the same values
+        torch.testing.assert_close(packed_rows(field.bank[0], q), outs[0][0], rtol=1e-6, atol=1e-7)
+
+
 def test_bank_initialisation_and_buffers():
     mesh = random_mesh(1)
     a, b, c = FeatureField(mesh, dim=7, seed=3), FeatureField(mesh, dim=7, seed=3), FeatureField(mesh, dim=7, seed=4)

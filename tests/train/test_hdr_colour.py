@@ -51,8 +51,10 @@ def test_squares_swirls_keeps_saturated_colours_and_black(shared_data):
     for x, y in centres:
         want, got = tonemap(_patch(truth, x, y)), tonemap(_patch(decoded, x, y))
         # 300 steps: the blue patch (140, 740) was 0.092 off on the Draco mesh, 0.108 with the free vertices snapped
-        # (mesh_coding "derived"): fit noise around 0.1; a lost hue is off by several tenths
-        assert np.abs(got - want).max() < 0.13, ((x, y), _patch(truth, x, y), _patch(decoded, x, y))
+        # (mesh_coding "derived"); the worst patch of seeds 0, 1, 2 is 0.115, 0.116, 0.025 off with batches of
+        # whole-epoch shuffles and 0.136, 0.115, 0.047 with batches of chunks (dfc.train.pixel_sampler): fit noise up
+        # to about 0.14; a lost hue is off by several tenths
+        assert np.abs(got - want).max() < 0.16, ((x, y), _patch(truth, x, y), _patch(decoded, x, y))
     assert report.psnr > 21.0
 
 
@@ -63,6 +65,8 @@ def test_wide_colour_gamut_keeps_its_hues(shared_data):
     for x, y in [(700, 560), (140, 740), (300, 400), (20, 20)]:  # red, blue and the mixed middle, the grey border
         want, got = tonemap(_patch(truth, x, y)), tonemap(_patch(decoded, x, y))
         # 300 steps: the blue patch (140, 740) was 0.092 off on the Draco mesh, 0.108 with the free vertices snapped
-        # (mesh_coding "derived"): fit noise around 0.1; a lost hue is off by several tenths
-        assert np.abs(got - want).max() < 0.13, ((x, y), _patch(truth, x, y), _patch(decoded, x, y))
+        # (mesh_coding "derived"); the worst patch of seeds 0, 1, 2 is 0.115, 0.116, 0.025 off with batches of
+        # whole-epoch shuffles and 0.136, 0.115, 0.047 with batches of chunks (dfc.train.pixel_sampler): fit noise up
+        # to about 0.14; a lost hue is off by several tenths
+        assert np.abs(got - want).max() < 0.16, ((x, y), _patch(truth, x, y), _patch(decoded, x, y))
     assert report.psnr > 28.0

@@ -54,6 +54,38 @@ def test_fused_adam_equals_the_per_tensor_and_foreach_updates(scene_mesh, monkey
         assert torch.equal(b, foreach[name]), name
 
 
+@pytest.mark.parametrize("kind", ["fused", "foreach", "per-tensor"])
+def test_loop_adam_is_torch_adam(kind, monkeypatch):
+    """The loop's Adam makes ``torch.optim.Adam``'s updates to the bit: two groups, learning rates changed between
+    steps, a parameter without a gradient in some steps."""
+    import dfc.train.loop as loop
+
+    monkeypatch.setattr(loop, "FUSED_DEVICES", ("cpu",) if kind == "fused" else ())
+    monkeypatch.setattr(loop, "FOREACH_DEVICES", ("cpu",) if kind == "foreach" else ())
+    gen = torch.Generator().manual_seed(0)
+    start = [torch.randn(7, 3, generator=gen), torch.randn(5, generator=gen), torch.randn(2, 2, generator=gen)]
+    grads = [[torch.randn_like(p) for p in start] for _ in range(6)]
+    ours = [p.clone().requires_grad_(True) for p in start]
+    theirs = [p.clone().requires_grad_(True) for p in start]
+    mine = loop._Adam([{"params": ours[:2], "lr": 0.0}, {"params": ours[2:], "lr": 0.0}], (0.9, 0.99),
+                      torch.device("cpu"))
+    ref = torch.optim.Adam([{"params": theirs[:2]}, {"params": theirs[2:]}], lr=0.0, betas=(0.9, 0.99),
+                           fused=kind == "fused", foreach=kind == "foreach")
+    for k, step_grads in enumerate(grads):
+        for a, b, lr in zip(mine.groups, ref.param_groups, (1e-2 * 0.9 ** k, 2e-3)):
+            a["lr"] = b["lr"] = lr
+        mine.zero_grad()
+        ref.zero_grad(set_to_none=True)
+        for i, g in enumerate(step_grads):
+            if not (i == 1 and k % 2):  # parameter 1 has no gradient in odd steps
+                ours[i].grad, theirs[i].grad = g.clone(), g.clone()
+        mine.step()
+        ref.step()
+        for a, b in zip(ours, theirs):
+            assert torch.equal(a, b)
+    assert not torch.equal(ours[0], start[0])
+
+
 def test_fit_reduces_loss_and_reports(scene_mesh):
     seen = []
     model = FieldModel(FeatureField(scene_mesh), ["R", "G", "B"])

@@ -41,17 +41,25 @@ def test_sampler_query_cache_and_exclusion(scene_mesh):
 
 
 @pytest.mark.parametrize("batch_size", [23, 100])  # batches that straddle epochs; larger than an epoch
-def test_filtered_sampler_batches_cross_epochs(batch_size):
+# batches of one chunk of pixels; of several, straddling chunks and laid-out blocks of three chunks
+@pytest.mark.parametrize("chunks, block", [(1, 64), (8, 3)])
+def test_filtered_sampler_batches_cross_epochs(batch_size, chunks, block, monkeypatch):
+    from dfc.field.feature_field import pack_query
     from dfc.pixel_filter import parse
+    from dfc.train import pixel_sampler
     from dfc.train.pixel_sampler import filtered_sampler
+
+    monkeypatch.setattr(pixel_sampler, "CHUNKS_PER_BATCH", chunks)
+    monkeypatch.setattr(pixel_sampler, "BLOCK_CHUNKS", block)
 
     h, w, sets = 6, 7, 3
     image = np.arange(h * w, dtype=np.float32).reshape(h, w, 1)
     filtered = np.zeros((h, w), bool)
     filtered[2:4, 1:5] = True
 
-    def query(xy):  # a stand-in for field.query: a function of the point alone
-        return (torch.floor(xy * 10).long(), xy.float())
+    def query(xy):  # a stand-in for field.query: a function of the point alone, one slot of weight 0
+        return (torch.cat([torch.floor(xy * 10).long(), torch.zeros(len(xy), 1, dtype=torch.long)], 1),
+                torch.cat([xy.float(), torch.zeros(len(xy), 1)], 1))
 
     sampler = filtered_sampler(image, (0.0, 0.0, float(w), float(h)), batch_size, parse("box:4"), filtered,
                                query=query, sets=sets, seed=0)
@@ -60,7 +68,9 @@ def test_filtered_sampler_batches_cross_epochs(batch_size):
     for step in range(6):
         xy, target, pw = sampler(step, gen)
         assert target.shape == (batch_size, 1)
-        torch.testing.assert_close(pw.query[0], query(xy)[0], rtol=0, atol=0)  # each point's own location
+        for got, want in zip(pw.query, pack_query(*query(xy))):  # each point's own location, no zero slot
+            torch.testing.assert_close(got, want, rtol=0, atol=0)
+        assert len(pw.query.idx) == 2 * len(xy) - int((xy == 0).sum())
         pixel = target[pw.row, 0].long()  # the pixel each point belongs to (the image holds its index)
         assert torch.equal(torch.floor(xy[:, 0]).long(), pixel % w)  # each point in its pixel
         assert torch.equal(torch.floor(xy[:, 1]).long(), pixel // w)

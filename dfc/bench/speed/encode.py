@@ -7,10 +7,10 @@ and beside a busy neighbour (``dfc.bench.neighbour``). Each run prints the fit's
 of the mean squared error of the last epoch's batches (enough steps to see every training pixel once), measured on
 the steps before the quantisation-aware ones, timed from the start of the fit (setup included).
 
-The breakdown profiles one more encode, ``--profile-steps`` long, one thread, alone (``torch.profiler``): per step,
-drawing the batch (sampling), interpolating the features (the gather of precomputed interpolation weights, point
-location included when a step locates its points), the decoder MLP forward, the loss, the backward pass of the MLP
-and of the interpolation, the optimiser, in ms; the fit's setup (point location and interpolation weights of every
+The breakdown profiles one more encode, ``--profile-steps`` long with the timed runs' decoder width, one thread,
+alone (``torch.profiler``): per step, drawing the batch (sampling), interpolating the features (the gather of
+precomputed interpolation weights, point location included when a step locates its points), the decoder MLP
+forward, the loss, the backward pass of the MLP and of the interpolation, the optimiser, in ms; the fit's setup (point location and interpolation weights of every
 training point, once), and the quantisation-aware steps against the others (from the timed run's steps).
 """
 
@@ -57,7 +57,8 @@ def _category(name: str) -> str | None:
     low = name.lower()
     if "backward" not in low or not low.startswith("autograd::engine::evaluate_function"):
         return None
-    return "interpolation backward" if ("embedding" in low or "weightedrows" in low) else "MLP backward"
+    return "interpolation backward" if any(k in low for k in ("embedding", "weightedrows", "packedrows")) \
+        else "MLP backward"
 
 
 def breakdown(run_encode, steps: int) -> dict[str, float]:
@@ -107,7 +108,7 @@ def command(image: str | None, curves_path: str | None, fit_curves: bool, steps:
     training PSNR) for each --threads count, alone and beside a busy neighbour, and a per-step breakdown."""
     import torch
 
-    from ...codec import EncodeSettings, encode_image
+    from ...codec import EncodeSettings, encode_image, image_decoder
     from ...geometry.sources import read_curves
     from ...io.image import read_image
     from ...train.fit import image_batch_size
@@ -123,9 +124,11 @@ def command(image: str | None, curves_path: str | None, fit_curves: bool, steps:
     err = stdout_taken(json_path)
     h, w = img.pixels.shape[:2]
 
+    width = image_decoder(settings, img.pixels.size, img.pixels.shape[2]).hidden  # the timed runs' decoder
+
     def run_encode(n_steps, callback):
-        return encode_image(img, curves, settings if n_steps is None else EncodeSettings(**{**given, "steps": n_steps}),
-                            callback=callback, fit_curves=fit_curves)
+        profiled = EncodeSettings(**{**given, "steps": n_steps, "hidden": width}) if n_steps is not None else None
+        return encode_image(img, curves, profiled or settings, callback=callback, fit_curves=fit_curves)
 
     stats = {"image": image_path.name, "curves": curves_file.name, "width": w, "height": h, "runs": []}
     click.echo(f"{image_path.name} ({w} x {h}) with {curves_file.name}; settings: "
