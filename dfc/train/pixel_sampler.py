@@ -53,8 +53,10 @@ class _Block:
     ``offsets`` (P,) each point's first slot, ``point`` (S,) each slot's point, ``slots`` (P + 1,) NumPy. Built
     from the pixels' point counts ``counts`` (Q,) and the points' slot counts ``slot_counts`` (P,) (NumPy)."""
 
-    def __init__(self, tables: dict, counts: np.ndarray, slot_counts: np.ndarray | None, device):
-        self.__dict__.update(tables)
+    def __init__(self, xy: Tensor, weight: Tensor, values: Tensor, counts: np.ndarray, idx: Tensor | None = None,
+                 w: Tensor | None = None, slot_counts: np.ndarray | None = None):
+        device = xy.device
+        self.xy, self.weight, self.values, self.idx, self.w = xy, weight, values, idx, w
         self.pixels = len(counts)
         self.row = _owner(counts, device)
         self.bounds = np.concatenate([[0], np.cumsum(counts)])
@@ -134,13 +136,14 @@ class _FilteredPixels:
         def cat(table, runs):
             return (np.concatenate if isinstance(table, np.ndarray) else torch.cat)([table[a:b] for a, b in runs])
 
-        tables = {"xy": cat(self.xy, points), "weight": cat(self.weight, points), "values": cat(self.values, pixels)}
-        slot_counts = None
+        queries = {}
         if self.cache is not None:
             slots = [(int(self.slots[a]), int(self.slots[b])) for a, b in points]
-            tables.update(idx=cat(self.cache.idx, slots), w=cat(self.cache.w, slots))
-            slot_counts = cat(self.slot_counts, points)
-        self.block, self.offset = _Block(tables, cat(self.counts, pixels), slot_counts, self.xy.device), 0
+            queries = {"idx": cat(self.cache.idx, slots), "w": cat(self.cache.w, slots),
+                       "slot_counts": cat(self.slot_counts, points)}
+        self.block = _Block(cat(self.xy, points), cat(self.weight, points), cat(self.values, pixels),
+                            cat(self.counts, pixels), **queries)
+        self.offset = 0
 
     def __call__(self, step: int, generator: torch.Generator):
         parts, taken, points, slots = [], 0, 0, 0
