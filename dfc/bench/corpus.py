@@ -307,21 +307,23 @@ def found_curves(pixels: np.ndarray, domain, progress: Callable[[str], None] | N
 
 # ----------------------------------------------------------------------------------------------- run
 def run_corpus(cases: list[CorpusCase], settings, *, size: int = 256, bpp=CORPUS_BPP, shared: Path | None = None,
-               progress: Callable[[str], None] | None = None, default_encode: bool = True, jobs: int = 1) -> dict:
-    """``run_case`` on every case, in ``jobs`` worker processes (each on one torch thread) when more than one
+               progress: Callable[[str], None] | None = None, default_encode: bool = True, own_rate: bool = False,
+               jobs: int = 1) -> dict:
+    """``run_case`` on every case (``own_rate`` as it says), in ``jobs`` worker processes (each on one torch thread)
+    when more than one
     (``progress`` must then be picklable: a module-level function). Returns {case name: record} in the cases'
     order; a case that fails to build or run ends the run (its error raised)."""
     progress = progress or _silent
     if jobs <= 1 or len(cases) <= 1:
         return {c.name: run_case(c, settings, size=size, bpp=bpp, shared=shared, progress=progress,
-                                 default_encode=default_encode, number=f"{k + 1}/{len(cases)}")
+                                 default_encode=default_encode, own_rate=own_rate, number=f"{k + 1}/{len(cases)}")
                 for k, c in enumerate(cases)}
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     with ProcessPoolExecutor(max_workers=jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = [pool.submit(_worker, c.name, settings, size, tuple(bpp), shared, progress, default_encode,
-                               f"{k + 1}/{len(cases)}") for k, c in enumerate(cases)]
+                               own_rate, f"{k + 1}/{len(cases)}") for k, c in enumerate(cases)]
         return {c.name: f.result() for c, f in zip(cases, futures)}
 
 
@@ -329,21 +331,25 @@ def _silent(message: str) -> None:
     return None
 
 
-def _worker(name, settings, size, bpp, shared, progress, default_encode, number) -> dict:
+def _worker(name, settings, size, bpp, shared, progress, default_encode, own_rate, number) -> dict:
     import torch
 
     torch.set_num_threads(1)
     return run_case(CASES[name], settings, size=size, bpp=bpp, shared=shared, progress=progress,
-                    default_encode=default_encode, number=number)
+                    default_encode=default_encode, own_rate=own_rate, number=number)
 
 
 def run_case(case: CorpusCase, settings, *, size: int = 256, bpp=CORPUS_BPP, shared: Path | None = None,
-             progress: Callable[[str], None] | None = None, default_encode: bool = True, number: str = "") -> dict:
+             progress: Callable[[str], None] | None = None, default_encode: bool = True, own_rate: bool = False,
+             number: str = "") -> dict:
     """``run_rd`` on ``case`` at ``bpp`` bits per pixel of its input (settings: ``BenchSettings``; its methods
     default to ``CORPUS_METHODS``, WebP left out for HDR input; zooms above 1 only with a reference; dfc as a
     default encode unless ``default_encode`` is False: then with ``settings.steps`` and ``batch_size``). Returns the
-    RD record without its per-budget ``runs``, with ``bpp``, ``case`` and the zoom margins ``zoom_margins``."""
+    RD record without its per-budget ``runs``, with ``bpp``, ``case`` and the zoom margins ``zoom_margins``; with
+    ``own_rate`` also ``own_rate``: dfc encoded without a byte target and every codec at that file's size, at 1×
+    (``_own_rate``)."""
     from ..metrics import is_hdr
+    from .compare import run_bench
     from .rd import run_rd
 
     progress = progress or _silent
@@ -361,7 +367,23 @@ def run_case(case: CorpusCase, settings, *, size: int = 256, bpp=CORPUS_BPP, sha
     record["case"] = {"name": case.name, "summary": case.summary, "auto": case.auto, "zoom_truth": case.zoom_truth,
                       "smooth": case.smooth}
     record["zoom_margins"] = _zoom_margins([r.results for r in result.runs])
+    if own_rate:
+        own = run_bench(**inputs, settings=replace(run_settings, target_bytes=None, zooms=(1,)),
+                        progress=lambda m: progress(f"{case.name}: at dfc's own size: {m}"))
+        record["own_rate"] = _own_rate(own.results, w * h)
     return record
+
+
+def _own_rate(results: dict, pixels: int) -> dict:
+    """{"bytes", "bpp", "psnr": dfc's file at 1× (all pixels), "codecs": {codec: {"bytes", "psnr"}}} of a
+    ``run_bench`` result without a byte target (the codecs at dfc's size); {"failed": why} when dfc made no file."""
+    methods = results["methods"]
+    if "dfc" not in methods:
+        return {"failed": results["failed"].get("dfc", "not run")}
+    dfc = methods["dfc"]
+    return {"bytes": dfc["bytes"], "bpp": round(8 * dfc["bytes"] / pixels, 4), "psnr": dfc["image_psnr"]["all"],
+            "codecs": {m: {"bytes": r["bytes"], "psnr": r["image_psnr"]["all"]} for m, r in methods.items()
+                       if m in CODECS}}
 
 
 def _zoom_margins(runs: list[dict]) -> dict:
@@ -442,6 +464,10 @@ def corpus_record(results: dict, skipped: dict[str, str], bpp=CORPUS_BPP) -> dic
         checks["zoom_min"] = min((v["min"] for v in zm.values()), default=None)
         edges = [v["edge_median"] for v in zm.values() if v["edge_median"] is not None]
         checks["zoom_edge_median_min"] = min(edges) if edges else None
+        own = rec.get("own_rate")
+        if own is not None:
+            best = [c["psnr"] for c in own.get("codecs", {}).values()]
+            checks["own_rate_margin"] = own["psnr"] - max(best) if "psnr" in own and best else None
         cases[name] = {"bd_rate": bd, "bd_rate_clean": bd_clean or None, "checks": checks, **rec}
     return {"corpus": True, "cases": cases, "skipped": skipped, "bpp": [float(b) for b in bpp]}
 
@@ -493,6 +519,23 @@ def corpus_markdown(record: dict) -> str:
         text += "\n" + table("BD-rate against the clean truth (noisy inputs)", "The same, every method's 1× PSNR "
                              "measured against the clean solve instead of the noisy input it was fitted to.",
                              ["case", *(f"vs {LABELS[m]}" for m in CODECS)], rows)
+    own = {n: c["own_rate"] for n, c in cases.items() if "own_rate" in c}
+    if own:
+        rows = []
+        for n, o in own.items():
+            if "psnr" not in o:
+                rows.append([n, "–", "–", f"no file ({o['failed']})", "–", "–"])
+                continue
+            best = max(o["codecs"], key=lambda m: o["codecs"][m]["psnr"], default=None)
+            rows.append([n, str(o["bytes"]), f"{o['bpp']:.3f}", f"{o['psnr']:.2f}",
+                         "–" if best is None else f"{LABELS[best]} {o['codecs'][best]['psnr']:.2f} "
+                                                  f"({o['codecs'][best]['bytes']})",
+                         _fmt(cases[n]["checks"].get("own_rate_margin"), "+.2f", " dB")])
+        text += "\n" + table("The default encode at its own size", "dfc encoded without a byte target (as `dfc encode` "
+                             "does by default), every codec at most that file's size; 1× PSNR in dB on all pixels "
+                             "(bytes). Issue 29 asks the default encode to land on or above the codecs' curve at its "
+                             "own rate: margin ≥ 0.", ["case", "dfc bytes", "bpp", "dfc 1×", "best codec (bytes)",
+                                                       "margin"], rows)
     bpp = record["bpp"]
     rows = []
     for name, c in cases.items():

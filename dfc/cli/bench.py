@@ -79,6 +79,9 @@ def _budgets(ctx, param, value):
 @click.option("--prune-curves/--no-prune-curves", "prune_curves", default=True, show_default=True,
               help="--corpus: prune the curves of the --curves auto cases for each budget, as dfc encode --curves auto "
                    "does (dfc.geometry.sources.prune).")
+@click.option("--corpus-own-rate", is_flag=True,
+              help="--corpus: also encode dfc without a byte target (the default encode) and measure every codec at "
+                   "that file's size, at 1x.")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes (and the corpus cases) and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
               help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
@@ -126,7 +129,7 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, corpus_jobs, prune_curves, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            corpus_data, corpus_bpp, corpus_jobs, prune_curves, corpus_own_rate, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -141,7 +144,7 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
     dfc bench --scene SCENE.xml [RENDER.exr] [--curves CURVES] [--scene-spp N] -o DIR
     dfc bench --scene NAME --rd [--budgets 2048,4096,...] -o DIR
     dfc bench --solve SCENE -o DIR
-    dfc bench --corpus [--corpus-cases NAME,...] [--json PATH] [-o DIR]
+    dfc bench --corpus [--corpus-cases NAME,...] [--corpus-own-rate] [--json PATH] [-o DIR]
     dfc bench --list-scenes
 
     Probes default to points on edges, at junctions and stroke tips, and in smooth regions, found from the curves.
@@ -151,7 +154,7 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
     on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
     --zoom do not apply). --corpus runs every case of the real-content corpus (or --corpus-cases) and prints the
     BD-rate table of dfc against each codec, the 1x PSNR per budget and the zoom margins (the tables also to
-    DIR/results.md with -o). --json also writes results.json's record to a file (- for standard output, the table
+    DIR/results.md with -o); --corpus-own-rate adds dfc's default encode against the codecs at its own size. --json also writes results.json's record to a file (- for standard output, the table
     then going to standard error).
     """
     from ..bench.scenes import SCENES, SUMMARIES
@@ -169,12 +172,13 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
                 or probes or fit_curves_to_image:
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
-        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, output, zooms, methods, steps, batch_size, size, render, spp,
-                pixel_grid, max_triangles, seed, device, json_path, quiet)
+        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, corpus_own_rate, output, zooms,
+                methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles, seed, device, json_path, quiet)
         return
-    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1 or not prune_curves:
-        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp, --corpus-jobs and --no-prune-curves apply "
-                               "to --corpus")
+    if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1 or not prune_curves \
+            or corpus_own_rate:
+        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp, --corpus-jobs, --corpus-own-rate and "
+                               "--no-prune-curves apply to --corpus")
     render = render or 256
     from ..bench.rendered import is_scene_file
 
@@ -313,7 +317,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     _finish(markdown_table(results), output, json_path)
 
 
-def _corpus(cases, data, bpp, jobs, prune_curves, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
+def _corpus(cases, data, bpp, jobs, prune_curves, own_rate, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
             seed, device, json_path, quiet) -> None:
     """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
     are given (they then apply to it too)."""
@@ -344,7 +348,7 @@ def _corpus(cases, data, bpp, jobs, prune_curves, output, zooms, methods, steps,
     if not selected:
         raise click.UsageError("no corpus case can run here: " + "; ".join(f"{n}: {w}" for n, w in skipped.items()))
     results = run_corpus(selected, settings, size=size or 256, bpp=bpp_values, shared=shared, progress=progress,
-                         default_encode=not own, jobs=jobs)
+                         default_encode=not own, own_rate=own_rate, jobs=jobs)
     record = corpus_record(results, skipped, bpp_values)
     text = corpus_markdown(record)
     doc = corpus_document(record, text)

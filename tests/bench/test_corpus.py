@@ -108,9 +108,11 @@ def test_tiny_corpus_run_prints_bd_rates_and_writes_a_result_file(tmp_path, caps
     code, out, err = run(["bench", "--corpus", "--corpus-cases", "point-shapes,dc-sunset", "--corpus-data",
                           tmp_path / "absent", "--size", "48", "--corpus-bpp", "12,24", "--steps", "30",
                           "--batch-size", "1024", "--render", "16", "--spp", "1", "--zoom", "1", "--zoom", "10",
-                          "--methods", "dfc,jpegxl,jpeg2k", "--json", path, "-o", tmp_path / "out"], capsys)
+                          "--methods", "dfc,jpegxl,jpeg2k", "--corpus-own-rate", "--json", path, "-o", tmp_path / "out"],
+                         capsys)
     assert code == 0, err
     assert "skipping corpus case dc-sunset" in err and "BD-rate" in out and "point-shapes" in out
+    assert "The default encode at its own size" in out
     doc = json.loads(path.read_text())
     assert validate(doc) == [] and doc["page"] == "corpus" and doc["skipped"] == {"dc-sunset": doc["skipped"]["dc-sunset"]}
     case = doc["cases"]["point-shapes"]
@@ -126,6 +128,10 @@ def test_tiny_corpus_run_prints_bd_rates_and_writes_a_result_file(tmp_path, caps
     assert all(p["bytes"] <= p["budget"] for pts in case["curves"].values() for p in pts if "bytes" in p)
     assert "10" in case["zoom_margins"] and case["checks"]["zoom_min"] == case["zoom_margins"]["10"]["min"]
     assert {s["panel"] for s in doc["series"]} == {"point-shapes"}
+    own = case["own_rate"]  # dfc without a target (its own 30 steps), each codec at most that file's size
+    assert own["bpp"] == pytest.approx(8 * own["bytes"] / (48 * 48), abs=1e-4) and set(own["codecs"]) == {"jpegxl", "jpeg2k"}
+    assert all(c["bytes"] <= own["bytes"] for c in own["codecs"].values())
+    assert case["checks"]["own_rate_margin"] == pytest.approx(own["psnr"] - max(c["psnr"] for c in own["codecs"].values()))
     assert json.loads((tmp_path / "out" / "results.json").read_text())["cases"].keys() == {"point-shapes"}
 
 
@@ -142,7 +148,7 @@ def test_bad_corpus_options_are_one_error_line(tmp_path, capsys, args, match):
     assert not (tmp_path / "c.json").exists()
 
 
-@pytest.mark.parametrize("option", [["--corpus-cases", "point-shapes"], ["--no-prune-curves"]])
+@pytest.mark.parametrize("option", [["--corpus-cases", "point-shapes"], ["--no-prune-curves"], ["--corpus-own-rate"]])
 def test_corpus_options_need_corpus(tmp_path, capsys, option):
     code, _, err = run(["bench", "--scene", "shapes", *option, "-o", tmp_path], capsys)
     assert_one_line_error(code, err, "apply to --corpus")
