@@ -11,7 +11,9 @@ Features are quantised per feature channel: for channel k, ``offset[k] = min``, 
 and ``F' = offset + q * scale`` computed in float32.
 
 Weight matrices W (out, in) are quantised symmetrically per output row: ``scale[o]`` is ``max |W[o]| /
-(2**(bits-1) - 1)`` rounded to float16 (1 for an all-zero row or one whose scale is no positive normal float16),
+(2**(bits-1) - 1)`` rounded up to float16 (so no weight is clipped), at least the smallest normal float16 (2**-14:
+at 15 and 16 bits a row of weights below 1 or 2 would otherwise get a subnormal scale) and 1 for an all-zero or
+non-finite row,
 ``q = round(W / scale)`` (half to even) clamped to ``[-(2**(bits-1) - 1), 2**(bits-1) - 1]`` and ``W' = q * scale``,
 all in float32 torch arithmetic on the tensor's own device (IEEE division and product, so CPU and GPU agree bit for
 bit).
@@ -129,9 +131,12 @@ def check_weight_bits(bits) -> int:
 def weight_scales(W: torch.Tensor, bits: int) -> torch.Tensor:
     """Per-row scales (out,) float32 (each a float16 value) of a weight matrix W (out, in), on W's device."""
     top = float(2 ** (check_weight_bits(bits) - 1) - 1)
-    scale = (W.detach().float().abs().amax(dim=1) / top).half().float()
-    normal = (scale >= torch.finfo(torch.float16).tiny) & torch.isfinite(scale)
-    return torch.where(normal, scale, torch.ones_like(scale))
+    amax = W.detach().float().abs().amax(dim=1)
+    exact = amax / top
+    half = exact.half()
+    half = torch.where(half.float() < exact, torch.nextafter(half, torch.full_like(half, float("inf"))), half)
+    scale = half.float().clamp_min(torch.finfo(torch.float16).tiny)  # rounded up: |W| / scale ≤ top
+    return torch.where((amax > 0) & torch.isfinite(scale), scale, torch.ones_like(scale))
 
 
 def quantize_weights(W: torch.Tensor, bits: int) -> tuple[torch.Tensor, torch.Tensor]:

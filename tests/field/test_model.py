@@ -192,6 +192,19 @@ def test_weight_quantisation_is_per_row_and_symmetric():
     assert torch.equal(W.grad, torch.ones_like(W))  # straight through
 
 
+@pytest.mark.parametrize("bits", [8, 12, 14, 15, 16])
+def test_many_weight_bits_keep_small_weights(bits):
+    """At 15 and 16 bits the scale of a row of weights below 1 or 2 is below float16's smallest normal: it is that
+    normal, not 1 (which rounded every weight of the README sample's decoder to 0 or ±1: 61.2 → 28.8 dB)."""
+    gen = torch.Generator().manual_seed(0)
+    W = (torch.rand(32, 32, generator=gen) - 0.5) * torch.logspace(-4, 0, 32)[:, None]  # rows' largest 1e-4 … 0.5
+    q, scale = quantize_weights(W, bits)
+    top = 2 ** (bits - 1) - 1
+    assert q.abs().max() <= top and torch.equal(scale, scale.half().float()) and bool((scale > 0).all())
+    assert torch.all((dequantize_weights(q, scale) - W).abs() <= 0.5 * scale[:, None] * (1 + 1e-6))
+    assert float((dequantize_weights(q, scale) - W).abs().max()) < 0.5 * 2.0 / top + 1e-7
+
+
 def test_rejects_bad_options(mesh):
     field = FeatureField(mesh)
     with pytest.raises(ValueError, match="transform"):
