@@ -19,14 +19,25 @@ SAMPLE = SAMPLES / "sample.dfield"
 
 
 def start(*args):
-    """A ``dfc`` server process started with ``args`` and its URL's (host, port), once it listens."""
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    """A ``dfc`` server process started with ``args`` and its URL's (host, port), once it listens (with
+    ``faulthandler`` on: SIGABRT prints every thread's stack, ``stacks_of``)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "dfc", *map(str, args)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
     line = proc.stdout.readline()
     assert line.startswith("dfc serve: http://127.0.0.1:"), (line, proc.stderr.read() if proc.poll() else "")
     host, port = line.split("//")[1].split("/")[0].split(":")
     return proc, host, int(port)
+
+
+def stacks_of(proc) -> str:
+    """The end of a hung server's standard error after SIGABRT: ``faulthandler``'s stacks of its threads."""
+    proc.send_signal(signal.SIGABRT)
+    try:
+        _, err = proc.communicate(timeout=10)
+    except subprocess.TimeoutExpired:
+        return "(no stacks: the process did not end on SIGABRT)"
+    return err[-4000:]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
@@ -39,7 +50,11 @@ def test_serve_stops_cleanly(sig):
         assert r.status == 200 and r.read()[:4] == b"\x89PNG"
         conn.close()
         proc.send_signal(sig)
-        assert proc.wait(30) == 0
+        try:
+            code = proc.wait(30)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"still running 30 s after {sig!r}; its threads:\n{stacks_of(proc)}")
+        assert code == 0
     finally:
         if proc.poll() is None:
             proc.kill()
