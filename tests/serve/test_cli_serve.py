@@ -18,12 +18,19 @@ from ..conftest import SAMPLES
 SAMPLE = SAMPLES / "sample.dfield"
 
 
+def _default_sigint() -> None:
+    """In the child before it runs: SIGINT's default action, as from a terminal. A test run started in the
+    background of a non-interactive shell (``pytest &``) ignores SIGINT, the server would inherit that, and
+    Python installs no KeyboardInterrupt handler for an ignored SIGINT: the server would not stop."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(*args):
     """A ``dfc`` server process started with ``args`` and its URL's (host, port), once it listens (with
     ``faulthandler`` on: SIGABRT prints every thread's stack, ``stacks_of``)."""
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONFAULTHANDLER": "1"}
     proc = subprocess.Popen([sys.executable, "-m", "dfc", *map(str, args)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
+                            stderr=subprocess.PIPE, text=True, env=env, preexec_fn=_default_sigint)
     line = proc.stdout.readline()
     assert line.startswith("dfc serve: http://127.0.0.1:"), (line, proc.stderr.read() if proc.poll() else "")
     host, port = line.split("//")[1].split("/")[0].split(":")
