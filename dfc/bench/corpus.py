@@ -310,8 +310,7 @@ def run_corpus(cases: list[CorpusCase], settings, *, size: int = 256, bpp=CORPUS
                progress: Callable[[str], None] | None = None, default_encode: bool = True, own_rate: bool = False,
                jobs: int = 1) -> dict:
     """``run_case`` on every case (``own_rate`` as it says), in ``jobs`` worker processes (each on one torch thread)
-    when more than one
-    (``progress`` must then be picklable: a module-level function). Returns {case name: record} in the cases'
+    when more than one (``progress`` must then be picklable: a module-level function). Returns {case name: record} in the cases'
     order; a case that fails to build or run ends the run (its error raised)."""
     progress = progress or _silent
     if jobs <= 1 or len(cases) <= 1:

@@ -154,8 +154,9 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
     on the Laplace equation's loss alone and measures it against a finite-difference solve (--render, --spp and
     --zoom do not apply). --corpus runs every case of the real-content corpus (or --corpus-cases) and prints the
     BD-rate table of dfc against each codec, the 1x PSNR per budget and the zoom margins (the tables also to
-    DIR/results.md with -o); --corpus-own-rate adds dfc's default encode against the codecs at its own size. --json also writes results.json's record to a file (- for standard output, the table
-    then going to standard error).
+    DIR/results.md with -o); --corpus-own-rate adds dfc's default encode against the codecs at its own size.
+    --json also writes results.json's record to a file (- for standard output, the table then going to standard
+    error).
     """
     from ..bench.scenes import SCENES, SUMMARIES
 

@@ -50,10 +50,16 @@ class _WeightedRows(torch.autograd.Function):
         return grad.new_zeros(ctx.rows, grad.shape[1]).index_add_(0, idx.reshape(-1), rows), None, None
 
 
+def _table_grad_on_cpu(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> bool:
+    """Whether a gather of ``table``'s rows takes the CPU's custom backward: on the CPU, a gradient wanted for the
+    table and none for the weights (a fit's precomputed queries)."""
+    return idx.device.type == "cpu" and not w.requires_grad and table.requires_grad and torch.is_grad_enabled()
+
+
 def weighted_rows(table: torch.Tensor, idx: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """(N, D) sums of ``table`` (R, D) rows ``idx`` (N, k) int64 weighted by ``w`` (N, k): ``embedding_bag``, with a
     faster gradient to ``table`` on the CPU when ``w`` needs none (a fit's precomputed queries)."""
-    if idx.device.type == "cpu" and not w.requires_grad and table.requires_grad and torch.is_grad_enabled():
+    if _table_grad_on_cpu(table, idx, w):
         return _WeightedRows.apply(table, idx, w)
     return nnf.embedding_bag(idx, table, per_sample_weights=w, mode="sum")
 
@@ -72,8 +78,9 @@ class PackedQuery(NamedTuple):
 
 def pack_query(idx: torch.Tensor, w: torch.Tensor) -> PackedQuery:
     """The ``PackedQuery`` of a query ``idx`` (N, k) int64, ``w`` (N, k)."""
-    keep = torch.nonzero(w.reshape(-1) != 0).squeeze(1)
-    counts = (w != 0).sum(1)
+    nonzero = w != 0
+    keep = torch.nonzero(nonzero.reshape(-1)).squeeze(1)
+    counts = nonzero.sum(1)
     return PackedQuery(idx.reshape(-1).index_select(0, keep), w.reshape(-1).index_select(0, keep),
                        torch.cumsum(counts, 0) - counts,
                        torch.repeat_interleave(torch.arange(len(idx), device=idx.device), counts))
@@ -98,8 +105,8 @@ class _PackedRows(torch.autograd.Function):
 
 def packed_rows(table: torch.Tensor, q: PackedQuery) -> torch.Tensor:
     """(N, D) sums of ``table`` (R, D) rows weighted as the packed query ``q`` says (``weighted_rows`` of the full
-    query); differentiable with respect to ``table`` only (on the CPU through ``_PackedRows``)."""
-    if q.idx.device.type == "cpu" and table.requires_grad and torch.is_grad_enabled():
+    query); on the CPU, when only ``table`` needs a gradient, through ``_PackedRows``."""
+    if _table_grad_on_cpu(table, q.idx, q.w):
         return _PackedRows.apply(table, q.idx, q.w, q.offsets, q.point)
     return nnf.embedding_bag(q.idx, table, q.offsets, mode="sum", per_sample_weights=q.w)
 

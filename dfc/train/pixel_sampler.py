@@ -43,7 +43,7 @@ class PixelWeights:
 
     row: Tensor
     weight: Tensor
-    query: tuple | None = None
+    query: PackedQuery | None = None
 
 
 class _Block:

@@ -10,8 +10,9 @@ the steps before the quantisation-aware ones, timed from the start of the fit (s
 The breakdown profiles one more encode, ``--profile-steps`` long with the timed runs' decoder width, one thread,
 alone (``torch.profiler``): per step, drawing the batch (sampling), interpolating the features (the gather of
 precomputed interpolation weights, point location included when a step locates its points), the decoder MLP
-forward, the loss, the backward pass of the MLP and of the interpolation, the optimiser, in ms; the fit's setup (point location and interpolation weights of every
-training point, once), and the quantisation-aware steps against the others (from the timed run's steps).
+forward, the loss, the backward pass of the MLP and of the interpolation, the optimiser, in ms; the fit's setup
+(point location and interpolation weights of every training point, once), and the quantisation-aware steps
+against the others (from the timed run's steps).
 """
 
 from __future__ import annotations
@@ -127,8 +128,8 @@ def command(image: str | None, curves_path: str | None, fit_curves: bool, steps:
     width = image_decoder(settings, img.pixels.size, img.pixels.shape[2]).hidden  # the timed runs' decoder
 
     def run_encode(n_steps, callback):
-        profiled = EncodeSettings(**{**given, "steps": n_steps, "hidden": width}) if n_steps is not None else None
-        return encode_image(img, curves, profiled or settings, callback=callback, fit_curves=fit_curves)
+        run = settings if n_steps is None else EncodeSettings(**{**given, "steps": n_steps, "hidden": width})
+        return encode_image(img, curves, run, callback=callback, fit_curves=fit_curves)
 
     stats = {"image": image_path.name, "curves": curves_file.name, "width": w, "height": h, "runs": []}
     click.echo(f"{image_path.name} ({w} x {h}) with {curves_file.name}; settings: "
