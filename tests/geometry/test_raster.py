@@ -86,6 +86,23 @@ def test_circle_radius_within_five_hundredths():
     assert np.abs(radius - r).max() <= 0.05
 
 
+def test_point_sampled_circle_is_smoothed_out_of_its_staircase():
+    """A point sample holds no mixed pixel: the edge points follow a staircase, which the fit must not take for
+    shape (a circle found as a few smooth pieces, not a polygon of dozens)."""
+    from dfc.pixel_filter import parse
+
+    cx, cy, r = 32.3, 31.6, 20.7
+    y, x = np.mgrid[0:64, 0:64] + 0.5
+    image = (0.3 + 0.5 * ((x - cx) ** 2 + (y - cy) ** 2 < r * r))[..., None]
+    point = parse("point")
+    smoothed = image_curves(image, pixel_filter=point)
+    jagged = image_curves(image, pixel_filter=point, point_sigma=0.0, point_tolerance=0.05)
+    error = [np.abs(np.linalg.norm(sample(c) - (cx, cy), axis=1) - r) for c in (smoothed, jagged)]
+    assert smoothed.n_curves == 1 and len(smoothed) <= 8 < len(jagged)
+    assert error[0].mean() <= 0.15 and error[0].max() <= 0.4
+    assert error[0].mean() < error[1].mean()
+
+
 @pytest.mark.parametrize("width", [4.0, 8.0])
 def test_smooth_ramp_is_not_a_curve(width):
     x = (np.arange(48) + 0.5 - 24.0) / width

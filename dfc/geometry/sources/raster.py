@@ -7,7 +7,9 @@ The stages, each in its own module:
    unless given; "auto": extracted with the box first, then the filter ``dfc.pixel_model.detect`` finds along
    those curves, and extracted again with it when it is another) places the edge where the mixed pixels say it is, and tells a step (kept) from a ramp wider than ``max_blur`` or a jump below ``low`` (dropped).
 3. ``chains``: edge pixels linked into ordered chains of sub-pixel points, cut where the profile stops
-   being a step, joined through junctions and corners; chains shorter than ``min_length`` are dropped.
+   being a step, joined through junctions and corners; chains shorter than ``min_length`` are dropped. A
+   point-sampled image holds no mixed pixel, so its points follow a staircase: they are smoothed along the chain
+   (``point_sigma``) and fitted within at least ``point_tolerance``.
 4. ``dfc.geometry.fitting``: lines and cubic Béziers within ``tolerance`` of the points, cut at corners.
 5. Welding (here): a free chain end that points at another curve within ``weld`` pixels is extended to
    end exactly on it (a T junction); one that points at the image border within that distance ends on it.
@@ -61,12 +63,19 @@ class RasterSettings:
     """Linear level below which the perceptual channels stop being logarithmic (noise floor of dark areas)."""
     weld: float = 6.0
     """Free chain ends are extended onto a curve or the image border they point at within this distance (px)."""
+    point_sigma: float = 1.5
+    """Point-sampled input only (pixel filter ``point``): a point sample holds no mixed pixel, so an edge point lies
+    anywhere within about half a pixel of the edge (a staircase); the points are smoothed along their chain by a
+    Gaussian of this σ (px) before fitting (0: not smoothed)."""
+    point_tolerance: float = 0.3
+    """Point-sampled input only: the fitting tolerance (px) is at least this; the smoothed staircase keeps a few
+    tenths of a pixel of it, which a tighter fit would take for shape."""
 
     def check(self) -> None:
         """Raise ``ValueError`` naming the first impossible value."""
         for f in fields(self):
             value = getattr(self, f.name)
-            if not np.isfinite(value) or value < 0 or (value == 0 and f.name not in ("min_length", "max_blur", "weld")):
+            if not np.isfinite(value) or value < 0 or (value == 0 and f.name not in ("min_length", "max_blur", "weld", "point_sigma")):
                 raise ValueError(f"{f.name} must be a finite number > 0, got {value!r}")
         if self.low > self.high:
             raise ValueError(f"low ({self.low}) must not exceed high ({self.high})")
@@ -127,6 +136,10 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pix
         raise InputError(f"image holds {int((~np.isfinite(pixels)).sum())} NaN or infinite value(s)")
     domain = (0.0, 0.0, float(W), float(H))
     chains = _chains(pixels, settings, pixel_filter)
+    if pixel_filter is not None and pixel_filter.name == "point":
+        for c in chains:
+            c.points = _smooth(c.points, c.closed, settings.point_sigma)
+        settings = replace(settings, tolerance=max(settings.tolerance, settings.point_tolerance))
     fits = _weld(chains, [_fit(c, settings) for c in chains], settings, domain)
     degree = [d for d, _ in fits]
     cp = [c for _, c in fits]
@@ -159,6 +172,24 @@ def _chains(pixels: np.ndarray, s: RasterSettings, pixel_filter=None) -> list[Ch
 @functools.lru_cache(maxsize=16)
 def _max_residual(max_blur: float, pixel_filter=None) -> float:
     return residual_of_blur(max_blur, pixel_filter)
+
+
+def _smooth(points: np.ndarray, closed: bool, sigma: float) -> np.ndarray:
+    """Points (n, 2) of a chain smoothed along it by a Gaussian of ``sigma`` px (in steps of the median spacing);
+    an open chain is extended by its points reflected through each end, so its ends stay and straight runs stay
+    straight up to them."""
+    from scipy.ndimage import gaussian_filter1d
+
+    n = len(points)
+    spacing = np.median(np.linalg.norm(np.diff(points, axis=0), axis=1)) if n > 1 else 0.0
+    if sigma <= 0 or n < 3 or spacing <= 0:
+        return points
+    steps = sigma / spacing
+    if closed:
+        return gaussian_filter1d(points, steps, axis=0, mode="wrap")
+    k = min(n - 1, int(np.ceil(4 * steps)))
+    padded = np.concatenate([2 * points[0] - points[k:0:-1], points, 2 * points[-1] - points[-2:-k - 2:-1]])
+    return gaussian_filter1d(padded, steps, axis=0, mode="nearest")[k:k + n]
 
 
 def _fit(chain: Chain, s: RasterSettings) -> tuple[np.ndarray, np.ndarray]:
