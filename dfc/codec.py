@@ -13,6 +13,7 @@ the data range divided by the scale, the same dB. So a signal fits the same in a
 from __future__ import annotations
 
 import functools
+import inspect
 import math
 import time
 from dataclasses import dataclass, field, replace
@@ -24,7 +25,7 @@ from .errors import InputError, TargetBytesError
 from .field.quantize import DEFAULT_FEATURE_BITS
 from .field.units import ValueMap, choose, describe
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
-from .io.dfield import encode_model, encoder_info, load, loads
+from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES, SHORT_FIT_HIDDEN, decoder_hidden,
@@ -159,13 +160,16 @@ def _feature_bits(encode):
     """``encode(signal, curves, settings, **kw)`` with the default ``settings.feature_bits`` (None) resolved:
     ``DEFAULT_FEATURE_BITS``; when a byte target is too small for the smallest mesh with them, each of
     ``dfc.rate.FEATURE_BITS_FALLBACK`` in turn (a target is refused before any fitting, so a retry costs only the
-    mesh sizing)."""
+    mesh sizing). An encoder taking ``chosen_bits`` is told so (its byte target's fill may then store one bit
+    fewer, ``_fill_within``); bits given in ``settings`` are kept as given."""
+    chooses = "chosen_bits" in inspect.signature(encode).parameters
 
     @functools.wraps(encode)
     def resolved(signal, curves: Curves, settings: EncodeSettings | None = None, **kw):
         settings = settings or EncodeSettings()
         if settings.feature_bits is not None:
             return encode(signal, curves, settings, **kw)
+        kw = {**kw, "chosen_bits": True} if chooses else kw
         tried = (DEFAULT_FEATURE_BITS, *(FEATURE_BITS_FALLBACK if settings.target_bytes else ()))
         for bits in tried[:-1]:
             try:
@@ -179,7 +183,8 @@ def _feature_bits(encode):
 
 @_feature_bits
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
-                 fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None):
+                 fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None,
+                 chosen_bits: bool = False):
     """Encode a raster with its discontinuity curves.
 
     Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
@@ -194,6 +199,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     callback : ``callback(step, loss, batch_psnr)`` after each optimiser step
     curves_info : where the curves came from, stored in the file's encoder info under ``curves`` (``dfc encode
         --curves auto``: extracted from the image, with the extractor's settings)
+    chosen_bits : the feature bits are the encoder's choice (``settings.feature_bits`` was None): a byte target's
+        fill may store one bit fewer (``_fill_within``)
 
     The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
     is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).
@@ -243,8 +250,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                                    size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0), value_map,
                                                                       stored)[0]),
                                    quality=lambda m: fit_scale.psnr(fitted, render(m, w, h, pixel_filter=pixel_filter)),
-                                   data_range=fit_scale.data_range, tonemap=fit_scale.tonemap,
-                                   pixel_filter=pixel_filter)
+                                   fewer_bits=chosen_bits, data_range=fit_scale.data_range,
+                                   tonemap=fit_scale.tonemap, pixel_filter=pixel_filter)
     seconds["mesh_s"] += sizing_s
     seconds = {"detect_s": detect_s, **seconds}
     blob, report = _finish(model, settings, info, seconds, w * h,
@@ -446,7 +453,7 @@ def heldout_split(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
 
 @_feature_bits
 def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None, *, sampling: str = "linear",
-               callback: Callback | None = None):
+               callback: Callback | None = None, chosen_bits: bool = False):
     """Encode a FEM solution (``dfc.io.fem.FemSolution``) with its barrier curves.
 
     The domain is the curves' when it contains the mesh, else the mesh's bounding box (``dfc.physics.fem.fem_curves``).
@@ -457,7 +464,7 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     Refinement (``refine_rounds``: ``target_bytes``, ``target_psnr`` or ``refine``) splits where the error at those
     training points is largest, never below the median element's area (the data holds no finer detail), and
     ``target_psnr`` is of the nodal PSNR; without a mesh-size option, target or ``refine`` the encode aims at
-    ``FEM_TARGET_PSNR``.
+    ``FEM_TARGET_PSNR``. ``chosen_bits``: as in ``encode_image``.
     """
     from .geometry.plane import triangle_areas
     from .io.samples import SampleSet
@@ -488,7 +495,7 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
                                    min_area=float(np.median(triangle_areas(solution.points[solution.triangles]))),
                                    size_of=lambda m: len(encode_model(m, settings, info, value_map=value_map)[0]),
                                    quality=lambda m: fit_scale.psnr(*at_nodes(m, nodal_fitted)),
-                                   data_range=fit_scale.data_range, tonemap=False, **fit_kw)
+                                   fewer_bits=chosen_bits, data_range=fit_scale.data_range, tonemap=False, **fit_kw)
     return _finish(model, settings, info, seconds, len(nodal), at_nodes, scale, value_map=value_map, units=units)
 
 
@@ -538,12 +545,13 @@ def _physical(settings: EncodeSettings) -> tuple[EncodeSettings, dict]:
 
 
 def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, channels: list[str], callback,
-                  mesh=None, residual=None, min_area: float = 0.0, size_of=None, quality=None, **fit_kw):
+                  mesh=None, residual=None, min_area: float = 0.0, size_of=None, quality=None,
+                  fewer_bits: bool = False, **fit_kw):
     """Build the decoder-view mesh (unless ``mesh`` is that mesh already), then fit ``fit_fn`` (``fit_image``,
     ``fit_samples`` or ``fit_frames``) to ``signal`` on it, and refine ``settings.refine`` times (``_refine``, with
     ``residual(model) -> (xy (M, 2), squared error (M,))``, triangles of at least ``min_area`` split,
-    ``size_of(model) -> bytes`` of its file for a byte target and ``quality(model) -> dB`` for a PSNR target);
-    ``fit_kw`` go to ``fit_fn``. Returns (model, seconds per stage)."""
+    ``size_of(model) -> bytes`` of its file for a byte target, ``quality(model) -> dB`` for a PSNR target and
+    ``fewer_bits`` for ``_fill_within``); ``fit_kw`` go to ``fit_fn``. Returns (model, seconds per stage)."""
     clock = time.perf_counter()
     mesh_settings, mesh = (settings, mesh) if mesh is not None else sized_mesh(curves, settings, channels, size_of)
     seconds = {"mesh_s": time.perf_counter() - clock}
@@ -555,29 +563,30 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
     if settings.refine and residual is not None:
         clock = time.perf_counter()
         model = _refine(model, fit_fn, signal, curves, settings, mesh_settings, residual, min_area, size_of, quality,
-                        fit_kw)
+                        fit_kw, fewer_bits)
         seconds["refine_s"] = time.perf_counter() - clock
     return model, seconds
 
 
 def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mesh_settings, residual,
-            min_area: float, size_of, quality, fit_kw):
+            min_area: float, size_of, quality, fit_kw, fewer_bits: bool = False):
     """``settings.refine`` rounds of error-driven refinement of a fitted ``model``: split the triangles where
     ``residual`` is largest (curved triangles stay), rebuild the mesh (with ``mesh_settings``, which built the first
     one, plus the new vertices) and refit from the current fit (``init``). Without a byte target a round splits the
     triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
     (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
-    files priced with ``size_of``), and a refit whose file still outgrows the target is redone with fewer of them
-    (``_fill_within``). Stops early when no triangle is left to split, or when ``quality(model)`` reaches
+    files priced with ``size_of``), and a refit whose file still outgrows the target is redone (``_fill_within``,
+    ``fewer_bits`` as it says). Stops early when no triangle is left to split, or when ``quality(model)`` reaches
     ``settings.target_psnr``."""
     from .rate import build_mesh, fill_points, refinement_points
 
     extra = np.zeros((0, 2))
     steps = settings.refine_steps or max(1, settings.steps // 2)
 
-    def refit(points):
+    def refit(points, bits=settings.feature_bits):
         mesh = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, points]))
-        return fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model, **fit_kw)
+        return fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model,
+                      **{**fit_kw, "feature_bits": bits})
 
     for _ in range(settings.refine):
         if settings.target_psnr is not None and quality(model) >= settings.target_psnr:
@@ -591,7 +600,8 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
         else:
             points = fill_points(model, curves, mesh_settings, extra, xy, err, size_of, settings.target_bytes,
                                  min_area=min_area)
-            refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes)
+            refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes,
+                                           settings.feature_bits, fewer_bits)
         if refined is None:
             break
         extra = np.concatenate([extra, points])
@@ -599,19 +609,25 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     return model
 
 
-def _fill_within(model, points: np.ndarray, refit, size_of, target: int):
+def _fill_within(model, points: np.ndarray, refit, size_of, target: int, bits: int, fewer_bits: bool = False):
     """(refitted model, points (P, 2) it used), or (None, no points) when even the fewest fill points outgrow
-    ``target``: ``refit(points)`` on the fill's points (``dfc.rate.fill_points``, in decreasing order of error),
-    then, while the file is over ``target`` bytes (the refit's features can cost more than the carried-over ones it
-    was priced with), on a prefix of them cut in proportion to the overshoot (at most ``FILL_RETRIES`` times)."""
+    ``target``: ``refit(points, bits)`` on the fill's points (``dfc.rate.fill_points``, in decreasing order of error)
+    with ``bits`` per feature. While the file is over ``target`` bytes (the refit's features can cost more than the
+    carried-over ones it was priced with, by up to a tenth of the target, varying with the seed), at most
+    ``FILL_RETRIES`` times: on a prefix of the points cut in proportion to the overshoot, the last time (with
+    ``fewer_bits``) on the same points at one bit fewer per feature, about a tenth of the features' bytes
+    (``CHANGELOG.md``, "A byte target's fill stores a bit fewer rather than nothing")."""
     base = None
-    for _ in range(FILL_RETRIES + 1):
+    for attempt in range(FILL_RETRIES + 1):
         if not len(points):
             break
-        refined = refit(points)
+        refined = refit(points, bits)
         size = size_of(refined)
         if size <= target:
             return refined, points
+        if fewer_bits and bits > 1 and attempt == FILL_RETRIES - 1:
+            bits, fewer_bits = bits - 1, False
+            continue
         base = size_of(model) if base is None else base
         keep = int(len(points) * FILL * (target - base) / max(size - base, 1))
         points = points[:max(0, min(keep, len(points) - 1))]
@@ -629,8 +645,12 @@ def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels
             value_map: ValueMap | None = None, units: str = "", pixel_filter: str | None = None):
     """Write the model (fitted in the units of ``value_map``, ``_units``) to bytes, decode them, measure PSNR of the
     decoded model against ``truth`` on ``scale`` (``pixel_size``, ``pixel_filter``: of a raster input, for the
-    header; ``units``: the summary's line)."""
+    header; ``units``: the summary's line). The file stores the model's feature bits (``dfc.io.dfield.storage``:
+    a byte target's fill may have taken one fewer, ``_fill_within``), which ``info`` and the report then say."""
     clock = time.perf_counter()
+    bits = storage(settings, model)["feature_bits"]
+    if bits != settings.feature_bits:
+        settings, info = replace(settings, feature_bits=bits), {**info, "feature_bits": bits}
     blob, sizes = encode_model(model, settings, info, pixel_size, value_map, pixel_filter)
     decoded = loads(blob, device=settings.device, validate_mesh=False)
     seconds["write_s"] = time.perf_counter() - clock

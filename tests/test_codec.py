@@ -184,20 +184,59 @@ def test_fill_within_cuts_the_points_in_proportion_and_gives_up():
     points = np.arange(100.0).reshape(50, 2)
     tried = []
 
-    def refit(p):
-        tried.append(len(p))
+    def refit(p, bits):
+        tried.append((len(p), bits))
         return len(p)
 
     def size_of(m):  # 1,000 bytes without fill points, 100 bytes per point
         return 1_000 + 100 * m
 
     model = 0
-    refined, used = _fill_within(model, points, refit, size_of, target=3_000)
-    assert tried[0] == 50 and refined == len(used) <= 20 and tried[-1] == len(used) and len(tried) == 2
+    refined, used = _fill_within(model, points, refit, size_of, target=3_000, bits=10)
+    assert tried[0] == (50, 10) and refined == len(used) <= 20 and tried[-1] == (len(used), 10) and len(tried) == 2
     np.testing.assert_array_equal(used, points[:len(used)])  # the points with the largest error first
     tried.clear()
-    refined, used = _fill_within(model, points, refit, size_of, target=900)  # over it before any point
-    assert refined is None and used.shape == (0, 2) and tried == [50]
+    refined, used = _fill_within(model, points, refit, size_of, target=900, bits=10)  # over it before any point
+    assert refined is None and used.shape == (0, 2) and tried == [(50, 10)]
+
+
+def test_a_file_stores_the_feature_bits_its_model_was_fitted_for(small_encode):
+    from dfc.io.dfield import encode_model, storage
+
+    model = loads(small_encode[1])
+    settings = EncodeSettings(feature_bits=10)
+    assert model.quantization is None and storage(settings, model)["feature_bits"] == 10
+    ten = encode_model(model, settings)[0]
+    model.quantization = {"feature_bits": 9}
+    assert storage(settings, model)["feature_bits"] == 9
+    nine = encode_model(model, settings)[0]
+    assert len(nine) < len(ten)
+    step = float(loads(ten).field.bank.detach().abs().max()) / 2 ** 8  # a 9-bit step over the features' range
+    assert np.abs(loads(nine).field.bank.detach().numpy() - loads(ten).field.bank.detach().numpy()).max() <= step
+
+
+def test_fill_within_stores_a_bit_fewer_on_its_last_try_when_the_bits_are_its_choice():
+    """A refit costs more than its points (its features are less smooth than the carried-over ones): the last retry
+    keeps the points and drops a feature bit when the encoder chose the bits, and cuts points again when not."""
+    from dfc.codec import _fill_within
+
+    points = np.arange(100.0).reshape(50, 2)
+    tried = []
+
+    def refit(p, bits):
+        tried.append((len(p), bits))
+        return len(p), bits
+
+    def size_of(m):  # the first fit 1,000 bytes; a refit 300 more, then 100 a point; bytes in proportion to the bits
+        n, bits = m
+        return (1_000 + (300 + 100 * n if n else 0)) * bits // 10
+
+    first = (0, 10)
+    refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10, fewer_bits=True)
+    assert tried == [(50, 10), (10, 10), (10, 9)] and refined == (10, 9) and len(used) == 10
+    tried.clear()
+    refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10)
+    assert tried == [(50, 10), (10, 10), (8, 10)] and refined == (8, 10)
 
 
 def test_target_psnr_refines_until_the_fit_reaches_it(scene):

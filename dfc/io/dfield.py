@@ -117,20 +117,23 @@ def load(path: str | Path, *, device: str = "cpu") -> FieldModel:
     return from_contents(read_dfield(path), device=device)
 
 
-def storage(settings) -> dict:
-    """``dfc.io.container.encode_dfield``'s keyword arguments for ``settings`` (an ``EncodeSettings``)."""
-    return {"feature_bits": settings.feature_bits, "feature_coding": settings.feature_coding,
+def storage(settings, model=None) -> dict:
+    """``dfc.io.container.encode_dfield``'s keyword arguments for ``settings`` (an ``EncodeSettings``); the feature
+    bits are ``model``'s quantisation-aware bits when it has them (``FieldModel.quantization``: a fit stores its
+    features at the bits it was fitted for), else the settings'."""
+    bits = (getattr(model, "quantization", None) or {}).get("feature_bits", settings.feature_bits)
+    return {"feature_bits": bits, "feature_coding": settings.feature_coding,
             "weight_bits": settings.weight_bits, "mesh_coding": settings.mesh_coding}
 
 
 def encode_model(model, settings, info: dict | None = None, pixel_size=None, value_map: ValueMap | None = None,
                  pixel_filter: str | None = None) -> tuple[bytes, dict[str, int]]:
-    """(``.dfield`` bytes, bytes per chunk) of ``model`` written with ``settings``' storage, the header's ``encoder``
-    record ``info``, ``pixel_size``, ``value_map`` (a model fitted in normalised units, ``dfc.field.units``) and
-    ``pixel_filter``. The mesh was validated once, when rate control built it (``dfc.rate.build_mesh``), and its bytes
-    decode to it exactly: it is not validated again."""
+    """(``.dfield`` bytes, bytes per chunk) of ``model`` written with ``storage(settings, model)``, the header's
+    ``encoder`` record ``info``, ``pixel_size``, ``value_map`` (a model fitted in normalised units,
+    ``dfc.field.units``) and ``pixel_filter``. The mesh was validated once, when rate control built it
+    (``dfc.rate.build_mesh``), and its bytes decode to it exactly: it is not validated again."""
     return encode_dfield(to_contents(model, info, pixel_size=pixel_size, value_map=value_map,
-                                     pixel_filter=pixel_filter), mesh_validated=True, **storage(settings))
+                                     pixel_filter=pixel_filter), mesh_validated=True, **storage(settings, model))
 
 
 def encoder_info(settings, source: str, extra: dict) -> dict:
