@@ -103,6 +103,8 @@ class BenchSettings:
         ``steps`` and ``batch_size`` then apply to the neural baselines only)
     prune_curves : curves found in the image (``Curves.source`` "auto") are pruned for each budget before dfc's
         encode, as ``dfc encode --curves auto`` does (``dfc.geometry.sources.prune``)
+    refine_curves : such curves are then refined against the pixels, as ``dfc encode --curves auto`` does
+        (``dfc.geometry.sources.refine``; both by ``dfc.geometry.sources.auto.ready_curves``)
     """
 
     steps: int = IMAGE_STEPS
@@ -123,6 +125,7 @@ class BenchSettings:
     keep_going: bool = False
     default_encode: bool = False
     prune_curves: bool = True
+    refine_curves: bool = True
 
     def check(self, budgeted: bool = False) -> None:
         """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
@@ -207,20 +210,24 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
         if (step + 1) % every == 0 or step + 1 == steps:
             progress(f"dfc: step {step + 1}/{steps}, batch PSNR {batch_psnr:.2f} dB")
 
-    pruned = None
-    if settings.prune_curves and curves.source == "auto":
-        from ..geometry.sources.prune import prune_curves
+    pruned = refined = None
+    if curves.source == "auto" and (settings.prune_curves or settings.refine_curves):
+        from ..geometry.sources.auto import ready_curves
 
-        pruned = prune_curves(pixels, curves, n_triangles=settings.max_triangles, target_bytes=settings.target_bytes)
-        progress(f"dfc: curves pruned: {pruned.summary()}")
-        curves = replace(pruned.curves, source="auto")
+        curves, pruned, refined = ready_curves(pixels, curves, prune=settings.prune_curves,
+                                               refine=settings.refine_curves, n_triangles=settings.max_triangles,
+                                               target_bytes=settings.target_bytes)
+        for what, done in (("pruned", pruned), ("refined", refined)):
+            if done is not None:
+                progress(f"dfc: curves {what}: {done.summary()}")
     blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
     model = loads(blob, device=settings.device)
     details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,
                           "dim": enc.dim, "feature_bits": report.feature_bits, "mesh_bits": enc.mesh_bits,
                           "steps": steps},
                "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds,
-               **({"pruned_curves": pruned.to_dict()} if pruned is not None else {})}
+               **({"pruned_curves": pruned.to_dict()} if pruned is not None else {}),
+               **({"refined_curves": refined.to_dict()} if refined is not None else {})}
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}
 
 

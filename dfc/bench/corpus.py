@@ -285,24 +285,22 @@ def _inputs(case: CorpusCase, size: int, settings, shared: Path | None, progress
 
 
 def found_curves(pixels: np.ndarray, domain, progress: Callable[[str], None] | None = None):
-    """``--curves auto``: the curves ``dfc.geometry.sources.raster.image_curves`` finds at its defaults in
-    ``pixels`` (H, W, C), scaled from pixels onto ``domain`` (x0, y0, x1, y1). ExtraError without scikit-image."""
+    """``--curves auto``: the curves ``dfc encode --curves auto`` finds in ``pixels`` (H, W, C)
+    (``dfc.geometry.sources.auto.find_curves``, the pixel filter detected), scaled from pixels onto ``domain``
+    (x0, y0, x1, y1); they are pruned and refined for each budget with dfc's encode (``BenchSettings``).
+    ExtraError without scikit-image."""
     from ..errors import ExtraError
-    from ..geometry.curves import Curves
+    from ..geometry.curves import fit_curves_to_domain
 
     if progress:
-        progress("finding the curves in the raster (dfc curves' defaults)")
+        progress("finding the curves in the raster (dfc encode --curves auto)")
     try:
-        from ..geometry.sources.raster import image_curves
+        from ..geometry.sources.auto import find_curves
 
-        found = image_curves(pixels)
+        found = find_curves(pixels)[0]
     except ImportError:
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
-    h, w = pixels.shape[:2]
-    x0, y0, x1, y1 = domain
-    cp = found.control_points * [(x1 - x0) / w, (y1 - y0) / h] + [x0, y0]
-    return Curves(tuple(map(float, domain)), cp, found.degree, found.curve, found.t_range, found.names, found.sides,
-                  source="auto")
+    return fit_curves_to_domain(found, tuple(map(float, domain)))
 
 
 # ----------------------------------------------------------------------------------------------- run

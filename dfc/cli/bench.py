@@ -79,6 +79,9 @@ def _budgets(ctx, param, value):
 @click.option("--prune-curves/--no-prune-curves", "prune_curves", default=True, show_default=True,
               help="--corpus: prune the curves of the --curves auto cases for each budget, as dfc encode --curves auto "
                    "does (dfc.geometry.sources.prune).")
+@click.option("--refine-curves/--no-refine-curves", "refine_curves", default=True, show_default=True,
+              help="--corpus: refine the curves of the --curves auto cases against the pixels for each budget, after "
+                   "pruning, as dfc encode --curves auto does (dfc.geometry.sources.refine).")
 @click.option("--corpus-own-rate", is_flag=True,
               help="--corpus: also encode dfc without a byte target (the default encode) and measure every codec at "
                    "that file's size, at 1x.")
@@ -129,7 +132,7 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, corpus_jobs, prune_curves, corpus_own_rate, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -173,13 +176,13 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
                 or probes or fit_curves_to_image:
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
-        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, corpus_own_rate, output, zooms,
-                methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles, seed, device, json_path, quiet)
+        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, output,
+                zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles, seed, device, json_path, quiet)
         return
     if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1 or not prune_curves \
-            or corpus_own_rate:
-        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp, --corpus-jobs, --corpus-own-rate and "
-                               "--no-prune-curves apply to --corpus")
+            or not refine_curves or corpus_own_rate:
+        raise click.UsageError("--corpus-cases, --corpus-data, --corpus-bpp, --corpus-jobs, --corpus-own-rate, "
+                               "--no-prune-curves and --no-refine-curves apply to --corpus")
     render = render or 256
     from ..bench.rendered import is_scene_file
 
@@ -318,7 +321,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     _finish(markdown_table(results), output, json_path)
 
 
-def _corpus(cases, data, bpp, jobs, prune_curves, own_rate, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
+def _corpus(cases, data, bpp, jobs, prune_curves, refine_curves, own_rate, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
             seed, device, json_path, quiet) -> None:
     """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
     are given (they then apply to it too)."""
@@ -339,7 +342,8 @@ def _corpus(cases, data, bpp, jobs, prune_curves, own_rate, output, zooms, metho
     settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14, render=render or 128,
                              spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, CORPUS_METHODS),
                              max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=False,
-                             match_time=False, pixel_grid=pixel_grid, keep_going=True, prune_curves=prune_curves)
+                             match_time=False, pixel_grid=pixel_grid, keep_going=True, prune_curves=prune_curves,
+                             refine_curves=refine_curves)
     settings.check(budgeted=True)
     own = steps is not None or batch_size is not None
 

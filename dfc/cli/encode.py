@@ -240,19 +240,18 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
                                                              settings.batch_size))
         used = None
         if curves_path == "auto":
-            curves, curves_info, used = _auto_curves(signal, settings.pixel_filter)
+            curves, used, curves_info = _auto_curves(signal, settings.pixel_filter)
         else:
             curves = read_curves_checked(curves_path, quiet)
-        pruned = None
-        if prune_curves or (prune_curves is None and curves_path == "auto" and not out_of_core):
-            curves, pruned = _pruned_curves(signal, curves, settings, fit_curves_to_image)
+        pruned = refined = None
+        prune = prune_curves or (prune_curves is None and curves_path == "auto" and not out_of_core)
+        refine = refine_curves or (refine_curves is None and curves_path == "auto" and not out_of_core)
+        if prune or refine:
+            curves, pruned, refined = _ready_curves(signal, curves, settings, used, prune, refine,
+                                                    fit_curves_to_image, quiet)
             if curves_info is not None:
-                curves_info = {**curves_info, "pruned": pruned.to_dict()}
-        refined = None
-        if refine_curves or (refine_curves is None and curves_path == "auto" and not out_of_core):
-            curves, refined = _refined_curves(signal, curves, settings.pixel_filter, used, fit_curves_to_image, quiet)
-            if curves_info is not None:
-                curves_info = {**curves_info, "refined": refined.to_dict()}
+                curves_info = {**curves_info, **({"pruned": pruned.to_dict()} if pruned else {}),
+                               **({"refined": refined.to_dict()} if refined else {})}
         input_bytes = sum(os.path.getsize(p) for p in paths)
         if out_of_core:
             # read band by band while the input (or its spooled copy) is there
@@ -311,54 +310,35 @@ def encode_settings(options: dict):
 
 
 def _auto_curves(image, pixel_filter: str = "auto"):
-    """``--curves auto``: the image's curves by the raster extractor at its defaults with the encode's pixel filter
-    (``image_curves_filtered``: "auto" detects it as the encoder does), and the record of that for the file's encoder
-    info (``extracted``, ``extractor``, ``settings``: ``RasterSettings.to_dict()``, ``pixel_filter``, counts)."""
-    from dataclasses import replace
-
+    """``--curves auto``: (curves, filter used, record for the file's encoder info) of
+    ``dfc.geometry.sources.auto.find_curves`` with the encode's pixel filter."""
     from ..errors import ExtraError
 
     try:
-        from ..geometry.sources.raster import RasterSettings, image_curves_filtered
+        from ..geometry.sources.auto import find_curves
 
-        extractor = RasterSettings()
-        curves, used, _ = image_curves_filtered(image.pixels, extractor, pixel_filter)
+        return find_curves(image.pixels, pixel_filter)
     except ImportError:
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
-    record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
-              "settings": extractor.to_dict(), "pixel_filter": str(used), "curves": curves.n_curves,
-              "pieces": len(curves)}
-    return replace(curves, source="auto"), record, used
 
 
-def _pruned_curves(image, curves, settings, fit_curves_to_image: bool):
-    """(curves, ``Pruned``) of ``--prune-curves``: ``curves`` on the image's domain (``dfc.codec.check_domain``) less
-    those that do not earn their bytes for a mesh of ``settings.max_triangles`` (default size when None) in a file of
-    ``settings.target_bytes``."""
+def _ready_curves(image, curves, settings, used, prune: bool, refine: bool, fit_curves_to_image: bool, quiet: bool):
+    """(curves, ``Pruned`` or None, ``Refined`` or None) of ``--prune-curves`` and ``--refine-curves``
+    (``dfc.geometry.sources.auto.ready_curves``): ``curves`` on the image's domain (as the encoder takes them:
+    ``dfc.codec.check_domain``) less those that do not earn their bytes for a mesh of ``settings.max_triangles``
+    (default size when None) in a file of ``settings.target_bytes``, then refined against the pixels through ``used``
+    (the extractor's filter) or the filter of ``settings.pixel_filter`` ("auto": detected along the curves, as the
+    encoder does); a warning line when the refinement left them as given."""
     from ..codec import check_domain
-    from ..geometry.sources.prune import prune_curves
+    from ..geometry.sources.auto import ready_curves
 
     curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
-    pruned = prune_curves(image.pixels, curves, n_triangles=settings.max_triangles, target_bytes=settings.target_bytes)
-    return pruned.curves, pruned
-
-
-def _refined_curves(image, curves, pixel_filter: str, used, fit_curves_to_image: bool, quiet: bool):
-    """(curves, ``Refined``) of ``--refine-curves``: ``curves`` on the image's domain (as the encoder takes them:
-    ``dfc.codec.check_domain``) refined against its pixels through ``used`` (the extractor's filter) or the filter of
-    spec ``pixel_filter`` ("auto": detected along the curves, as the encoder does); a warning line when they are left
-    as given."""
-    from ..codec import check_domain
-    from ..geometry.sources.refine import refine_curves
-    from ..pixel_model import resolve
-
-    curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
-    if used is None:
-        used = resolve(pixel_filter, image.pixels, curves)[0]
-    refined = refine_curves(image.pixels, curves, used)
-    if refined.warning and not quiet:
+    curves, pruned, refined = ready_curves(image.pixels, curves, prune=prune, refine=refine,
+                                           n_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
+                                           pixel_filter=used or settings.pixel_filter)
+    if refined is not None and refined.warning and not quiet:
         click.echo(f"dfc: warning: {refined.warning}", err=True)
-    return refined.curves, refined
+    return curves, pruned, refined
 
 
 def _summary(output: str, kind: str, report, reference_path, curves_info, err: bool, refined=None,

@@ -148,7 +148,8 @@ def test_bad_corpus_options_are_one_error_line(tmp_path, capsys, args, match):
     assert not (tmp_path / "c.json").exists()
 
 
-@pytest.mark.parametrize("option", [["--corpus-cases", "point-shapes"], ["--no-prune-curves"], ["--corpus-own-rate"]])
+@pytest.mark.parametrize("option", [["--corpus-cases", "point-shapes"], ["--no-prune-curves"], ["--no-refine-curves"],
+                                    ["--corpus-own-rate"]])
 def test_corpus_options_need_corpus(tmp_path, capsys, option):
     code, _, err = run(["bench", "--scene", "shapes", *option, "-o", tmp_path], capsys)
     assert_one_line_error(code, err, "apply to --corpus")
