@@ -583,7 +583,7 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     extra = np.zeros((0, 2))
     steps = settings.refine_steps or max(1, settings.steps // 2)
 
-    def refit(points, bits=settings.feature_bits):
+    def refit(points, bits):
         mesh = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, points]))
         return fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model,
                       **{**fit_kw, "feature_bits": bits})
@@ -593,15 +593,16 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
             break
         mesh = model.field.mesh
         xy, err = residual(model)
+        bits = storage(settings, model)["feature_bits"]  # a round refits at the bits of the fit it starts from
         if settings.target_bytes is None:
             most = max(1, round(settings.refine_fraction * mesh.n_triangles))
             points = refinement_points(mesh, xy, err, most=most, min_area=min_area)
-            refined = refit(points) if len(points) else None
+            refined = refit(points, bits) if len(points) else None
         else:
             points = fill_points(model, curves, mesh_settings, extra, xy, err, size_of, settings.target_bytes,
                                  min_area=min_area)
-            refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes,
-                                           settings.feature_bits, fewer_bits)
+            refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes, bits,
+                                           fewer_bits and bits == settings.feature_bits)  # one bit fewer at most
         if refined is None:
             break
         extra = np.concatenate([extra, points])

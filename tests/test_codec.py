@@ -215,6 +215,21 @@ def test_a_file_stores_the_feature_bits_its_model_was_fitted_for(small_encode):
     assert np.abs(loads(nine).field.bank.detach().numpy() - loads(ten).field.bank.detach().numpy()).max() <= step
 
 
+def test_the_report_and_the_encoder_record_say_the_bits_the_file_stores(small_encode):
+    from dfc.codec import _finish
+    from dfc.io.dfield import encoder_info
+    from dfc.metrics import quality_scale
+
+    image, blob, _ = small_encode
+    model = loads(blob)
+    model.quantization = {"feature_bits": 9}  # as a fill's last retry leaves it
+    settings = EncodeSettings(feature_bits=10)
+    info = encoder_info(settings, "test", {})
+    out, report = _finish(model, settings, info, {}, 64 * 64, lambda m: (image, render(m, 64, 64)),
+                          quality_scale(image))
+    assert report.feature_bits == 9 and loads(out).header["encoder"]["feature_bits"] == 9 and info["feature_bits"] == 10
+
+
 def test_fill_within_stores_a_bit_fewer_on_its_last_try_when_the_bits_are_its_choice():
     """A refit costs more than its points (its features are less smooth than the carried-over ones): the last retry
     keeps the points and drops a feature bit when the encoder chose the bits, and cuts points again when not."""
