@@ -219,7 +219,8 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
                                                target_bytes=settings.target_bytes)
         for what, done in (("pruned", pruned), ("refined", refined)):
             if done is not None:
-                progress(f"dfc: curves {what}: {done.summary()}")
+                why = getattr(done, "warning", None)
+                progress(f"dfc: curves {what}: {done.summary()}" + (f" ({why})" if why else ""))
     blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
     model = loads(blob, device=settings.device)
     details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,

@@ -160,6 +160,28 @@ def test_crossing_curves_are_left_as_given_with_a_warning(shapes):
     np.testing.assert_array_equal(refined.curves.control_points, x.control_points)
 
 
+def test_crossing_pieces_stay_and_the_others_are_refined(shapes):
+    """Two crossing lines away from the disc are left as given (with a warning); the disc, moved by (0.13, −0.09)
+    px, is refined back as when alone."""
+    pixels = filtered_raster(shapes, 56, 56, "box")
+    disc = shapes.curves.curve == 1
+    true = replace(shapes.curves, control_points=shapes.curves.control_points[disc], degree=shapes.curves.degree[disc],
+                   curve=np.zeros(int(disc.sum()), dtype=np.int64), t_range=shapes.curves.t_range[disc],
+                   names=["disc"], sides=[None])
+    x = _pieces([("a", [(1, [(2.0, 48.0), (6.0, 54.0)])]), ("b", [(1, [(2.0, 54.0), (6.0, 48.0)])])],
+                (0.0, 0.0, 56.0, 56.0))
+    moved = replace(true, control_points=true.control_points + OFFSET)
+    both = replace(moved, control_points=np.concatenate([moved.control_points, x.control_points]),
+                   degree=np.concatenate([moved.degree, x.degree]), curve=np.r_[moved.curve, x.curve + 1],
+                   t_range=np.concatenate([moved.t_range, x.t_range]), names=["disc", "a", "b"], sides=[None] * 3)
+    refined = refine_curves(pixels, both, parse("box"))
+    assert refined.warning is not None and "'a' and 'b'" in refined.warning and "crossing pieces" in refined.summary()
+    out = refined.curves.control_points
+    np.testing.assert_array_equal(out[-2:], x.control_points)
+    alone = refine_curves(pixels, moved, parse("box")).curves
+    assert compare(true, replace(alone, control_points=out[:-2]))["mean_px"] <= 0.01
+
+
 def test_shared_endpoints_are_no_crossing(shapes):
     assert crossings(shapes.curves.control_points) == []
 

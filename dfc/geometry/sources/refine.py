@@ -22,9 +22,10 @@ image's range.
 Constraints: endpoints that coincide (``JOIN`` px) are one variable (junctions, closed curves, chained pieces);
 an endpoint lying on another piece's inside (a T) is that piece's point at a fixed parameter; an endpoint on the
 image border slides along it; every control point stays inside the image and within ``MAX_MOVE`` px of where it
-was; lines stay lines and quadratics quadratics. Curves that cross each other where they do not share a point are
-left as given with a warning, and a refinement that would make two curves cross is shortened (halved up to
-``BACKTRACK`` times) and else dropped, with a warning.
+was; lines stay lines and quadratics quadratics. Pieces that cross each other where they do not share a point are
+left as given, with every endpoint they share and the pieces their T ends lie on, and the others refined, with a
+warning; a refinement that would make two pieces cross that did not is shortened (halved up to ``BACKTRACK``
+times) and else dropped, with a warning.
 
 Coordinates follow ``spec/conventions.md``: pixel ``(r, c)`` covers ``[c, c + 1] × [r, r + 1]`` of the image's
 domain ``[0, W] × [0, H]``; curves over another domain are scaled onto it and back.
@@ -95,11 +96,13 @@ class Refined:
     warning: str | None = None
 
     def summary(self) -> str:
-        """One line: pixels fitted, misfit before → after, the largest move."""
-        if self.warning or not self.pixels:
+        """One line: pixels fitted, misfit before → after, the largest move (and whether some pieces were left as
+        given: ``warning``)."""
+        if not self.pixels or (self.warning and not self.moved.any()):
             return "left as given" + ("" if self.warning else ": no clean mixed pixels to fit")
         return (f"{self.pixels} mixed pixels, misfit {100 * self.misfit_before:.2f} % → {100 * self.misfit_after:.2f} % "
-                f"of the jump, control points moved ≤ {float(self.moved.max(initial=0.0)):.3f} px")
+                f"of the jump, control points moved ≤ {float(self.moved.max(initial=0.0)):.3f} px"
+                + ("; crossing pieces left as given" if self.warning else ""))
 
     def to_dict(self) -> dict:
         """The record a summary or a file's encoder info keeps (short: it goes into every file's header)."""
@@ -134,12 +137,9 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     if not len(start):
         return Refined(curves, np.zeros(0), 0, 0.0, 0.0)
     crossed = crossings(start)
-    if crossed:
-        i, j = crossed[0]
-        warning = (f"curves cross each other ({_name(curves, i)} and {_name(curves, j)}) where they share no point: "
-                   "refinement left them as given")
-        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, warning)
-    params = _Params(start, curves.degree, W, H)
+    params = _Params(start, curves.degree, W, H, frozen={p for pair in crossed for p in pair})
+    if params.frozen.all():
+        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, _crossing_warning(curves, crossed, "them"))
     reach = _reach(f)
     offsets, weights = f.nodes(QUAD_POINTS)
     offsets_t, weights_t = torch.from_numpy(offsets), torch.from_numpy(weights)
@@ -172,9 +172,9 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
         opt.step(closure)
         with torch.no_grad():
             cp = params.limit(params.build(x).numpy(), start)
-    warning = None
+    warning = _crossing_warning(curves, crossed, "those pieces") if crossed else None
     for _ in range(BACKTRACK + 1):
-        if not crossings(cp):
+        if set(crossings(cp)) <= set(crossed):
             break
         cp = start + 0.5 * (cp - start)
     else:
@@ -185,6 +185,13 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     used = len(data["piece"])
     before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (start, cp))
     return Refined(out, moved, used, before, after, warning)
+
+
+def _crossing_warning(curves: Curves, crossed: list[tuple[int, int]], what: str) -> str:
+    i, j = crossed[0]
+    more = f" and {len(crossed) - 1} more pair(s)" if len(crossed) > 1 else ""
+    return (f"curves cross each other ({_name(curves, i)} and {_name(curves, j)}{more}) where they share no point: "
+            f"refinement left {what} as given")
 
 
 def _name(curves: Curves, piece: int) -> str:
@@ -210,9 +217,10 @@ def _reach(f) -> float:
 class _Params:
     """The free variables of a piece set (P, 4, 2) in pixel units: one point per group of coinciding endpoints
     (T endpoints: none, they follow their piece), the inner control points of cubics, the middle point of
-    quadratics; coordinates of endpoints on the image border along the border only."""
+    quadratics; coordinates of endpoints on the image border along the border only. Pieces in ``frozen`` (and the
+    pieces their T endpoints lie on, and so on) stay as given, with every endpoint they share."""
 
-    def __init__(self, cp: np.ndarray, degree: np.ndarray, W: int, H: int):
+    def __init__(self, cp: np.ndarray, degree: np.ndarray, W: int, H: int, frozen=()):
         from scipy.sparse.csgraph import connected_components
         from scipy.spatial import cKDTree
 
@@ -248,6 +256,16 @@ class _Params:
         tol = 1e-6 * max(W, H)
         self.fixed = np.stack([(np.abs(node_xy[:, 0]) < tol) | (np.abs(node_xy[:, 0] - W) < tol),
                                (np.abs(node_xy[:, 1]) < tol) | (np.abs(node_xy[:, 1] - H) < tol)], axis=1)
+        self.frozen = np.zeros(P, dtype=bool)
+        self.frozen[list(frozen)] = True
+        while True:  # a frozen piece's T end stays on its host only when the host stays too
+            hosts = [p for node, (p, _) in self.tee.items()
+                     if not self.frozen[p] and self.frozen[(label[:P] == node) | (label[P:] == node)].any()]
+            if not hosts:
+                break
+            self.frozen[hosts] = True
+        self.fixed[np.unique(np.concatenate([label[:P][self.frozen], label[P:][self.frozen]]))] = True
+        self.start = cp.copy()
         self.node_xy = node_xy
         self.free_nodes = np.array([k for k in range(n) if k not in self.tee], dtype=np.int64)
         self.cubic = np.nonzero(self.degree == 3)[0]
@@ -293,6 +311,8 @@ class _Params:
                 p1[idx] = a[idx] + 2.0 / 3.0 * (middle - a[idx])
                 p2[idx] = b[idx] + 2.0 / 3.0 * (middle - b[idx])
             cp = torch.stack([a, p1, p2, b], dim=1)
+        if self.frozen.any():
+            cp = torch.where(torch.from_numpy(self.frozen)[:, None, None], torch.from_numpy(self.start), cp)
         lo = torch.zeros(2, dtype=cp.dtype)
         hi = torch.tensor([float(self.W), float(self.H)], dtype=cp.dtype)
         return torch.minimum(torch.maximum(cp, lo), hi)
