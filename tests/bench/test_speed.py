@@ -175,6 +175,26 @@ def test_curves_auto_benchmark_measures_before_and_after_refinement(tmp_path, ca
     assert " refined " in stdout
 
 
+def test_curves_auto_benchmark_measures_a_render_against_its_scene_curves(tmp_path, capsys):
+    """``--render CASE``: the Mitsuba case rendered at --size, its found and refined curves measured against the
+    scene's own curves (no analytic scene runs without --scene)."""
+    pytest.importorskip("skimage")
+    pytest.importorskip("mitsuba")
+
+    out = tmp_path / "ca.json"
+    code, stdout, err = run(["benchmark", "curves-auto", "--render", "mitsuba-shapes-hdr", "--size", "64", "--json",
+                             out], capsys)
+    assert code == 0, err
+    rows = json.loads(out.read_text())["localisation"]
+    assert [(r["scene"], r["filter"], r["stage"]) for r in rows] == [("mitsuba-shapes-hdr", "render", "found"),
+                                                                      ("mitsuba-shapes-hdr", "render", "refined")]
+    found = rows[0]
+    assert (found["width"], found["height"]) == (64, 64) and found["curves"] >= 1
+    assert found["matched_mean_px"] is not None and found["matched_mean_px"] < 0.5 and found["recall"] > 0.2
+    code, _, err = run(["benchmark", "curves-auto", "--render", "no-such-case"], capsys)
+    assert code != 0 and "no-such-case" in err
+
+
 def test_curves_auto_zoom_row_encodes_three_curve_sets_at_equal_bytes():
     """``zoom_row``: the extracted curves' file sets the byte target of the true and the refined curves' files."""
     from dataclasses import replace

@@ -15,7 +15,10 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 (``dfc.geometry.sources.refine``) and measured again (stage ``refined``). ``--zoom-steps N`` adds the edge zoom PSNR
 at 33× and 100× of three encodes at equal bytes (``zoom_row``): the extracted, the true and the refined curves.
 
-``--image FILE`` (repeatable) also runs the extractor on images without ground truth and prints counts.
+``--render CASE`` (repeatable) also runs on a path-traced render of a Mitsuba scene (``RENDER_CASES``: the corpus's
+renders, noise and all), whose true curves are the scene's own visible curves (``dfc curves SCENE.xml``): the
+curves ``dfc encode --curves auto`` finds there, with the filter it detects, before and after refinement. ``--image
+FILE`` (repeatable) also runs the extractor on images without ground truth and prints counts.
 """
 
 from __future__ import annotations
@@ -29,6 +32,8 @@ import numpy as np
 from ...io.atomic import write_bytes_atomic
 
 _STEP = 0.01  # px between samples of a curve
+RENDER_CASES = ("mitsuba-box", "mitsuba-gaussian-auto", "mitsuba-shapes-hdr", "mitsuba-shapes-auto")
+"""The ``dfc bench --corpus`` cases whose input is a Mitsuba render and whose scene gives the true curves."""
 
 
 def samples(curves) -> tuple[np.ndarray, np.ndarray]:
@@ -142,13 +147,18 @@ def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int) -> dict:
 @click.option("--zoom-steps", type=click.IntRange(min=0), default=0, show_default=True,
               help="With N > 0: encode each raster with the extracted, the true and the refined curves at equal bytes "
                    "(N steps each) and print the edge PSNR at 33x and 100x (slow: three encodes per raster).")
+@click.option("--render", "renders", multiple=True, metavar="CASE", type=click.Choice(RENDER_CASES),
+              help="Also measure on this path-traced render of a Mitsuba scene (a dfc bench --corpus case, rendered at "
+                   "--size, default 256), against the scene's own visible curves: the curves dfc encode --curves auto "
+                   "finds (the filter detected) and their refinement; repeatable; needs the render extra. Without "
+                   "--scene, no analytic scene is run.")
 @click.option("--image", "images", multiple=True, type=click.Path(exists=True, dir_okay=False),
               help="Also extract from this image (no ground truth: counts only); repeatable.")
 @click.option("--preview-dir", type=click.Path(file_okay=False), default=None,
               help="Draw each extraction over its image into this folder (NAME.png).")
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None,
               help="Also write the figures to this JSON file.")
-def command(scene_names, size, spp, filters, refine, zoom_steps, images, preview_dir, json_path):
+def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images, preview_dir, json_path):
     """Distance, recall and false curves of the raster extractor against the analytic scenes' exact curves, before
     and after refining them against the pixels; with --zoom-steps, edge zoom PSNR at equal bytes too."""
     from pathlib import Path
@@ -169,7 +179,7 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, images, preview
     def fmt(v, pct=False):
         return "–" if v is None else (f"{100 * v:6.1f}%" if pct else f"{v:6.3f}")
 
-    for name in scene_names or list(SCENES):
+    for name in scene_names or ([] if renders else list(SCENES)):
         scene = get_scene(name)
         x0, y0, x1, y1 = scene.domain
         longer = size or max(8, round(max(x1 - x0, y1 - y0)))
@@ -213,6 +223,20 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, images, preview
                 Path(preview_dir).mkdir(parents=True, exist_ok=True)
                 draw_curves(stages[-1][1], Path(preview_dir) / f"{name}_{label.replace(':', '_')}.png",
                             background=pixels, hdr=float(pixels.max()) > 1.0, before=found if refine else None)
+    for name in renders:
+        pixels, true, found, used, stages = _render_stages(name, size or 256, refine)
+        h, w = pixels.shape[:2]
+        for stage, curves, seconds in stages:
+            row = {"scene": name, "filter": "render", "detected": str(used), "stage": stage,
+                   **compare(true, curves), **counts(curves), "width": w, "height": h, "seconds": round(seconds, 3)}
+            results["localisation"].append(row)
+            click.echo(f"{name:>8} {'render':>13} {w:>4}x{h:<4} {stage:>7} {fmt(row['mean_px'])} {fmt(row['p95_px'])} "
+                       f"{fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} {fmt(row['recall'], True)} "
+                       f"{fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} {seconds:6.2f}")
+        if preview_dir:
+            Path(preview_dir).mkdir(parents=True, exist_ok=True)
+            draw_curves(stages[-1][1], Path(preview_dir) / f"{name}.png", background=pixels,
+                        hdr=float(pixels.max()) > 1.0, before=found if refine else None)
     for path in images:
         from ...io.image import read_image
 
@@ -229,6 +253,38 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, images, preview
             draw_curves(found, Path(preview_dir) / f"{Path(path).stem}.png", background=image.pixels, hdr=image.hdr)
     if json_path:
         write_bytes_atomic(json_path, (json.dumps(results, indent=2) + "\n").encode())
+
+
+def _render_stages(name: str, size: int, refine: bool):
+    """(pixels (H, W, C), the scene's curves over ``[0, W] × [0, H]``, the curves found, the filter they were found
+    with, [(stage, curves, seconds)]) of the Mitsuba corpus case ``name`` rendered at longer side ``size``: the
+    curves ``dfc encode --curves auto`` finds (``dfc.geometry.sources.auto.find_curves``), then refined through
+    that filter. Raises ``ExtraError`` without Mitsuba or scikit-image, ``InputError`` when the case's scene is
+    missing (a source checkout has it)."""
+    from ...errors import InputError
+    from ...geometry.curves import fit_curves_to_domain
+    from ...geometry.sources.auto import find_curves
+    from ...geometry.sources.refine import refine_curves
+    from ..compare import BenchSettings
+    from ..corpus import CASES, select_cases
+
+    _, skipped = select_cases([name], None)
+    if name in skipped:
+        raise InputError(f"--render {name}: {skipped[name]}")
+    inputs = CASES[name].build(size, BenchSettings(), None)
+    pixels = inputs["pixels"]
+    h, w = pixels.shape[:2]
+    true = fit_curves_to_domain(inputs["curves"], (0.0, 0.0, float(w), float(h)))
+    clock = time.perf_counter()
+    found, used, _ = find_curves(pixels)
+    stages = [("found", found, time.perf_counter() - clock)]
+    if refine:
+        clock = time.perf_counter()
+        refined = refine_curves(pixels, found, used)
+        stages.append(("refined", refined.curves, time.perf_counter() - clock))
+        if refined.warning:
+            click.echo(f"{name}: {refined.warning}")
+    return pixels, true, found, used, stages
 
 
 def _to_pixels(curves, sx: float, sy: float):

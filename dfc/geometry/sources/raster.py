@@ -117,7 +117,8 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pix
         e.g. ``image_curves(pixels, tolerance=0.1)``
     pixel_filter : the ``dfc.pixel_filter.PixelFilter`` that made the pixels (None: the box), for the sub-pixel
         step model
-    returns ``Curves`` over ``[0, W] × [0, H]``; empty (no pieces) when the image has no jumps
+    returns ``Curves`` over ``[0, W] × [0, H]``, every control point inside it; empty (no pieces) when the image has
+        no jumps
 
     Raises ``InputError`` for an image that is too small or holds NaN or infinite values, ``ValueError``
     for impossible settings.
@@ -146,6 +147,9 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pix
     counts = np.array([len(d) for d in degree], dtype=np.int64)
     n = int(counts.sum())
     k = np.arange(n) - np.repeat(np.cumsum(counts) - counts, counts)
+    # a corner where two tangents meet past the border, or a cubic's handle, can fall outside the image: pulled
+    # back onto it (the same for every piece sharing the point, so joins stay), the curves stay inside the image
+    cp = [np.clip(c, 0.0, [float(W), float(H)]) for c in cp]
     return Curves(domain, np.concatenate(cp) if n else np.zeros((0, 4, 2)),
                   np.concatenate(degree) if n else np.zeros(0, np.int8), np.repeat(np.arange(len(fits)), counts),
                   np.stack([k, k + 1.0], axis=1), [f"edge {i}" for i in range(len(fits))], [None] * len(fits))
