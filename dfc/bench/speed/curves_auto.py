@@ -164,8 +164,8 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
     from pathlib import Path
 
     from ...io.preview import draw_curves
+    from ...geometry.sources.auto import find_curves
     from ...geometry.sources.raster import RasterSettings, image_curves, image_curves_filtered
-    from ...geometry.sources.refine import refine_curves
     from ..scenes import SCENES, get_scene
 
     settings = RasterSettings()
@@ -189,18 +189,15 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
         for spec in filters or (None,):
             label = spec or f"box:{spp}"
             pixels = _raster(scene, w, h, spec, spp)
-            clock = time.perf_counter()
-            if spec is None:
-                found, used = image_curves(pixels, settings), None
-            else:
-                found, used, _ = image_curves_filtered(pixels, settings, "auto")
-            stages = [("found", found, time.perf_counter() - clock)]
-            if refine:
-                clock = time.perf_counter()
-                refined = refine_curves(pixels, found, used)
-                stages.append(("refined", refined.curves, time.perf_counter() - clock))
-                if refined.warning:
-                    click.echo(f"{name} {label}: {refined.warning}")
+
+            def find(p, spec=spec):
+                if spec is None:
+                    return image_curves(p, settings), None
+                return image_curves_filtered(p, settings, "auto")[:2]
+
+            stages, used = _stages(pixels, find, refine, f"{name} {label}")
+            found = stages[0][1]
+            refined = stages[-1][1]
             for stage, curves, seconds in stages:
                 row = {"scene": name, "filter": label, "detected": str(used) if used else None, "stage": stage,
                        **compare(exact.curves, curves), **counts(curves), "width": w, "height": h,
@@ -208,12 +205,10 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
                 results["localisation"].append(row)
                 if stage == "found" and spec is None:
                     results["scenes"][name] = row
-                click.echo(f"{name:>8} {label:>13} {w:>4}x{h:<4} {stage:>7} {fmt(row['mean_px'])} {fmt(row['p95_px'])} "
-                           f"{fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} {fmt(row['recall'], True)} "
-                           f"{fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} {seconds:6.2f}")
+                _echo(row, fmt)
             if zoom_steps and refine:
                 row = {"scene": name, "filter": label, "steps": zoom_steps,
-                       **zoom_row(exact, pixels, found, refined.curves, zoom_steps)}
+                       **zoom_row(exact, pixels, found, refined, zoom_steps)}
                 results["zoom"].append(row)
                 click.echo(f"{name:>8} {label:>13} equal bytes ({row.get('auto_bytes')} B), edge PSNR 33x / 100x: "
                            + "; ".join(f"{k} " + (f"{row[k + '_33x']:.2f} / {row[k + '_100x']:.2f} dB"
@@ -224,19 +219,18 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
                 draw_curves(stages[-1][1], Path(preview_dir) / f"{name}_{label.replace(':', '_')}.png",
                             background=pixels, hdr=float(pixels.max()) > 1.0, before=found if refine else None)
     for name in renders:
-        pixels, true, found, used, stages = _render_stages(name, size or 256, refine)
+        pixels, true = _render(name, size or 256)
         h, w = pixels.shape[:2]
+        stages, used = _stages(pixels, lambda p: find_curves(p)[:2], refine, name)
         for stage, curves, seconds in stages:
             row = {"scene": name, "filter": "render", "detected": str(used), "stage": stage,
                    **compare(true, curves), **counts(curves), "width": w, "height": h, "seconds": round(seconds, 3)}
             results["localisation"].append(row)
-            click.echo(f"{name:>8} {'render':>13} {w:>4}x{h:<4} {stage:>7} {fmt(row['mean_px'])} {fmt(row['p95_px'])} "
-                       f"{fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} {fmt(row['recall'], True)} "
-                       f"{fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} {seconds:6.2f}")
+            _echo(row, fmt)
         if preview_dir:
             Path(preview_dir).mkdir(parents=True, exist_ok=True)
             draw_curves(stages[-1][1], Path(preview_dir) / f"{name}.png", background=pixels,
-                        hdr=float(pixels.max()) > 1.0, before=found if refine else None)
+                        hdr=float(pixels.max()) > 1.0, before=stages[0][1] if refine else None)
     for path in images:
         from ...io.image import read_image
 
@@ -255,16 +249,39 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
         write_bytes_atomic(json_path, (json.dumps(results, indent=2) + "\n").encode())
 
 
-def _render_stages(name: str, size: int, refine: bool):
-    """(pixels (H, W, C), the scene's curves over ``[0, W] × [0, H]``, the curves found, the filter they were found
-    with, [(stage, curves, seconds)]) of the Mitsuba corpus case ``name`` rendered at longer side ``size``: the
-    curves ``dfc encode --curves auto`` finds (``dfc.geometry.sources.auto.find_curves``), then refined through
-    that filter. Raises ``ExtraError`` without Mitsuba or scikit-image, ``InputError`` when the case's scene is
+def _stages(pixels: np.ndarray, find, refine: bool, label: str):
+    """([(stage, curves, seconds)], the filter the curves were found with): the curves ``find(pixels) -> (curves,
+    filter or None: the box)``, then (``refine``) refined through that filter; a refinement's warning printed after
+    ``label``."""
+    from ...geometry.sources.refine import refine_curves
+
+    clock = time.perf_counter()
+    found, used = find(pixels)
+    stages = [("found", found, time.perf_counter() - clock)]
+    if refine:
+        clock = time.perf_counter()
+        refined = refine_curves(pixels, found, used)
+        stages.append(("refined", refined.curves, time.perf_counter() - clock))
+        if refined.warning:
+            click.echo(f"{label}: {refined.warning}")
+    return stages, used
+
+
+def _echo(row: dict, fmt) -> None:
+    """One printed row of the localisation table."""
+    w, h = row["width"], row["height"]
+    click.echo(f"{row['scene']:>8} {row['filter']:>13} {w:>4}x{h:<4} {row['stage']:>7} {fmt(row['mean_px'])} "
+               f"{fmt(row['p95_px'])} {fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} "
+               f"{fmt(row['recall'], True)} {fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} "
+               f"{row['seconds']:6.2f}")
+
+
+def _render(name: str, size: int):
+    """(pixels (H, W, C), the scene's visible curves over ``[0, W] × [0, H]``) of the Mitsuba corpus case ``name``
+    rendered at longer side ``size``. Raises ``ExtraError`` without Mitsuba, ``InputError`` when the case's scene is
     missing (a source checkout has it)."""
     from ...errors import InputError
     from ...geometry.curves import fit_curves_to_domain
-    from ...geometry.sources.auto import find_curves
-    from ...geometry.sources.refine import refine_curves
     from ..compare import BenchSettings
     from ..corpus import CASES, select_cases
 
@@ -274,17 +291,7 @@ def _render_stages(name: str, size: int, refine: bool):
     inputs = CASES[name].build(size, BenchSettings(), None)
     pixels = inputs["pixels"]
     h, w = pixels.shape[:2]
-    true = fit_curves_to_domain(inputs["curves"], (0.0, 0.0, float(w), float(h)))
-    clock = time.perf_counter()
-    found, used, _ = find_curves(pixels)
-    stages = [("found", found, time.perf_counter() - clock)]
-    if refine:
-        clock = time.perf_counter()
-        refined = refine_curves(pixels, found, used)
-        stages.append(("refined", refined.curves, time.perf_counter() - clock))
-        if refined.warning:
-            click.echo(f"{name}: {refined.warning}")
-    return pixels, true, found, used, stages
+    return pixels, fit_curves_to_domain(inputs["curves"], (0.0, 0.0, float(w), float(h)))
 
 
 def _to_pixels(curves, sx: float, sy: float):
