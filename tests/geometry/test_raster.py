@@ -103,6 +103,22 @@ def test_point_sampled_circle_is_smoothed_out_of_its_staircase():
     assert error[0].mean() < error[1].mean()
 
 
+def test_noisy_edge_points_are_smoothed_and_clean_ones_left_alone():
+    """A chain whose edge points scatter (noise, as in a path-traced render) is smoothed and fitted loosely: far
+    fewer pieces, no farther from the circle on average and much nearer at worst; a clean raster's chains are fitted
+    as they are."""
+    cx, cy, r = 32.3, 31.6, 20.7
+    clean = 0.3 + 0.5 * supersampled(64, 64, lambda x, y: (x - cx) ** 2 + (y - cy) ** 2 < r * r, ss=16)
+    noisy = clean + np.random.default_rng(1).normal(0.0, 0.03, clean.shape)
+    raw = {"max_scatter": np.inf}
+    assert np.array_equal(image_curves(clean[..., None]).control_points,
+                          image_curves(clean[..., None], **raw).control_points)
+    smoothed, jagged = image_curves(noisy[..., None]), image_curves(noisy[..., None], **raw)
+    error = [np.abs(np.linalg.norm(sample(c) - (cx, cy), axis=1) - r) for c in (smoothed, jagged)]
+    assert smoothed.n_curves == 1 and 2 * len(smoothed) <= len(jagged)
+    assert error[0].mean() <= error[1].mean() + 0.01 and error[0].max() < 0.6 * error[1].max()
+
+
 @pytest.mark.parametrize("width", [4.0, 8.0])
 def test_smooth_ramp_is_not_a_curve(width):
     x = (np.arange(48) + 0.5 - 24.0) / width

@@ -31,11 +31,13 @@ class Chain:
     points : (n, 2) float64, image coordinates
     closed : the last point is followed by the first
     free : (start, end) — True where the end stops without meeting anything (a tip, a T stem, the border)
+    rough : its points were smoothed (point-sampled or noisy: ``dfc.geometry.sources.raster``) and are fitted loosely
     """
 
     points: np.ndarray
     closed: bool
     free: tuple[bool, bool]
+    rough: bool = False
 
     @property
     def length(self) -> float:

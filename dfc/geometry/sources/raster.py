@@ -8,8 +8,10 @@ The stages, each in its own module:
    those curves, and extracted again with it when it is another) places the edge where the mixed pixels say it is, and tells a step (kept) from a ramp wider than ``max_blur`` or a jump below ``low`` (dropped).
 3. ``chains``: edge pixels linked into ordered chains of sub-pixel points, cut where the profile stops
    being a step, joined through junctions and corners; chains shorter than ``min_length`` are dropped. A
-   point-sampled image holds no mixed pixel, so its points follow a staircase: they are smoothed along the chain
-   (``point_sigma``) and fitted within at least ``point_tolerance``.
+   point-sampled image holds no mixed pixel, so its points follow a staircase; a noisy render's scatter: such
+   chains (every chain of a point-sampled image, any whose points scatter by more than ``max_scatter``) are smoothed
+   along their length (``point_sigma``) and fitted within at least ``point_tolerance``. "auto" reads the pixel
+   filter where the raw points are, before any smoothing.
 4. ``dfc.geometry.fitting``: lines and cubic Béziers within ``tolerance`` of the points, cut at corners.
 5. Welding (here): a free chain end that points at another curve within ``weld`` pixels is extended to
    end exactly on it (a T junction); one that points at the image border within that distance ends on it.
@@ -70,12 +72,17 @@ class RasterSettings:
     point_tolerance: float = 0.3
     """Point-sampled input only: the fitting tolerance (px) is at least this; the smoothed staircase keeps a few
     tenths of a pixel of it, which a tighter fit would take for shape."""
+    max_scatter: float = 0.04
+    """A chain whose edge points scatter by more than this (px: the lower quartile over the chain of the RMS residual
+    of a parabola through 7 consecutive points; noise in a path-traced render) is smoothed and fitted as a
+    point-sampled one (``point_sigma``, ``point_tolerance``); ``inf``: never."""
 
     def check(self) -> None:
         """Raise ``ValueError`` naming the first impossible value."""
         for f in fields(self):
             value = getattr(self, f.name)
-            if not np.isfinite(value) or value < 0 or (value == 0 and f.name not in ("min_length", "max_blur", "weld", "point_sigma")):
+            if not (np.isfinite(value) or (f.name == "max_scatter" and value == np.inf)) or value < 0 \
+                    or (value == 0 and f.name not in ("min_length", "max_blur", "weld", "point_sigma")):
                 raise ValueError(f"{f.name} must be a finite number > 0, got {value!r}")
         if self.low > self.high:
             raise ValueError(f"low ({self.low}) must not exceed high ({self.high})")
@@ -101,10 +108,12 @@ def image_curves_filtered(pixels: np.ndarray, settings: RasterSettings | None = 
     if str(pixel_filter).strip().lower() != "auto":
         f = parse(pixel_filter)
         return image_curves(pixels, settings, pixel_filter=f), f, None
-    curves = image_curves(pixels, settings)
+    settings = settings or RasterSettings()
+    raw = replace(settings, max_scatter=np.inf)  # the filter is read where the raw edge points are
+    curves = image_curves(pixels, raw)
     found = detect(pixels, curves)
-    if found.pixels and str(found.filter) != "box":
-        curves = image_curves(pixels, settings, pixel_filter=found.filter)
+    if settings != raw or (found.pixels and str(found.filter) != "box"):
+        curves = image_curves(pixels, settings, pixel_filter=found.filter if found.pixels else None)
     return curves, found.filter, found
 
 
@@ -137,10 +146,11 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pix
         raise InputError(f"image holds {int((~np.isfinite(pixels)).sum())} NaN or infinite value(s)")
     domain = (0.0, 0.0, float(W), float(H))
     chains = _chains(pixels, settings, pixel_filter)
-    if pixel_filter is not None and pixel_filter.name == "point":
-        for c in chains:
+    point = pixel_filter is not None and pixel_filter.name == "point"
+    for c in chains:
+        c.rough = point or _scatter(c.points) > settings.max_scatter
+        if c.rough:
             c.points = _smooth(c.points, c.closed, settings.point_sigma)
-        settings = replace(settings, tolerance=max(settings.tolerance, settings.point_tolerance))
     fits = _weld(chains, [_fit(c, settings) for c in chains], settings, domain)
     degree = [d for d, _ in fits]
     cp = [c for _, c in fits]
@@ -196,7 +206,26 @@ def _smooth(points: np.ndarray, closed: bool, sigma: float) -> np.ndarray:
     return gaussian_filter1d(padded, steps, axis=0, mode="nearest")[k:k + n]
 
 
+def _scatter(points: np.ndarray, k: int = 7) -> float:
+    """Scatter (px) of a chain's points (n, 2): the lower quartile of the RMS residual of a least-squares parabola
+    through each run of ``k`` consecutive points (in the frame of the run's chord; corners and curvature raise only
+    the runs around them); 0 for fewer than ``k`` points."""
+    if len(points) < k:
+        return 0.0
+    runs = np.lib.stride_tricks.sliding_window_view(points, (k, 2))[:, 0]  # (m, k, 2)
+    chord = runs[:, -1] - runs[:, 0]
+    along = chord / np.maximum(np.linalg.norm(chord, axis=1, keepdims=True), 1e-12)
+    q = runs - runs[:, k // 2][:, None]
+    x = np.einsum("mkd,md->mk", q, along)
+    y = np.einsum("mkd,md->mk", q, np.stack([-along[:, 1], along[:, 0]], axis=1))
+    basis = np.stack([np.ones_like(x), x, x * x], axis=2)  # (m, k, 3)
+    residual = (basis @ (np.linalg.pinv(basis) @ y[..., None]))[..., 0] - y
+    return float(np.percentile(np.sqrt((residual ** 2).mean(axis=1)), 25))
+
+
 def _fit(chain: Chain, s: RasterSettings) -> tuple[np.ndarray, np.ndarray]:
+    if chain.rough:
+        s = replace(s, tolerance=max(s.tolerance, s.point_tolerance))
     return fit_points(chain.points, tolerance=s.tolerance, corner_angle=s.corner_angle, span=_SPAN,
                       closed=chain.closed, min_points=_MIN_POINTS)
 
