@@ -108,13 +108,13 @@ def image_curves_filtered(pixels: np.ndarray, settings: RasterSettings | None = 
     if str(pixel_filter).strip().lower() != "auto":
         f = parse(pixel_filter)
         return image_curves(pixels, settings, pixel_filter=f), f, None
-    settings = settings or RasterSettings()
-    raw = replace(settings, max_scatter=np.inf)  # the filter is read where the raw edge points are
-    curves = image_curves(pixels, raw)
-    found = detect(pixels, curves)
-    if settings != raw or (found.pixels and str(found.filter) != "box"):
-        curves = image_curves(pixels, settings, pixel_filter=found.filter if found.pixels else None)
-    return curves, found.filter, found
+    pixels, settings = _checked(pixels, settings)
+    chains = _chains(pixels, settings)  # with the box; the filter is read where the raw edge points are
+    found = detect(pixels, _curves(chains, settings, pixels.shape, smooth=False))
+    if found.pixels and str(found.filter) != "box":
+        return _curves(_chains(pixels, settings, found.filter), settings, pixels.shape, _is_point(found.filter)), \
+            found.filter, found
+    return _curves(chains, settings, pixels.shape), found.filter, found
 
 
 def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pixel_filter=None,
@@ -132,7 +132,13 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pix
     Raises ``InputError`` for an image that is too small or holds NaN or infinite values, ``ValueError``
     for impossible settings.
     """
-    settings = replace(settings or RasterSettings(), **overrides)
+    pixels, settings = _checked(pixels, settings, overrides)
+    return _curves(_chains(pixels, settings, pixel_filter), settings, pixels.shape, _is_point(pixel_filter))
+
+
+def _checked(pixels, settings: RasterSettings | None, overrides: dict | None = None):
+    """(pixels (H, W, C) float64, settings with ``overrides``), both checked (``image_curves``' errors)."""
+    settings = replace(settings or RasterSettings(), **(overrides or {}))
     settings.check()
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.ndim == 2:
@@ -144,11 +150,22 @@ def image_curves(pixels: np.ndarray, settings: RasterSettings | None = None, pix
         raise InputError(f"image is {W} × {H} pixels: curves need at least 2 × 2")
     if not np.isfinite(pixels).all():
         raise InputError(f"image holds {int((~np.isfinite(pixels)).sum())} NaN or infinite value(s)")
+    return pixels, settings
+
+
+def _is_point(pixel_filter) -> bool:
+    return pixel_filter is not None and pixel_filter.name == "point"
+
+
+def _curves(chains: list[Chain], settings: RasterSettings, shape, point: bool = False, smooth: bool = True) -> Curves:
+    """Curves over ``[0, W] × [0, H]`` (``shape`` (H, W, …)) fitted to ``chains``, which are left as they are: rough
+    chains (all of a point-sampled image's, ``point``; any scattering past ``settings.max_scatter``) smoothed first
+    unless not ``smooth``, then fitted, welded and clamped into the image."""
+    H, W = shape[:2]
     domain = (0.0, 0.0, float(W), float(H))
-    chains = _chains(pixels, settings, pixel_filter)
-    point = pixel_filter is not None and pixel_filter.name == "point"
+    chains = [replace(c) for c in chains]  # smoothing and welding rebind a chain's points
     for c in chains:
-        c.rough = point or _scatter(c.points) > settings.max_scatter
+        c.rough = smooth and (point or _scatter(c.points) > settings.max_scatter)
         if c.rough:
             c.points = _smooth(c.points, c.closed, settings.point_sigma)
     fits = _weld(chains, [_fit(c, settings) for c in chains], settings, domain)
