@@ -30,6 +30,9 @@ Measurements, the same for every method:
   independent halves of its samples (``reference_psnr``): a method scoring near it is limited by the reference.
   Stored rasters (raster, codecs) are shown through both the bicubic and the Lanczos kernel and the better one
   counts, window by window (both are recorded).
+- *Super-resolution* (with a reference): the whole domain rendered at ``super_resolution`` times the input's pixels
+  per axis (``spp`` points per pixel, as a window), against the reference rendered there; beside the methods, the
+  input raster itself upsampled through each kernel — what doing nothing gives.
 
 Every PSNR is measured on ``dfc.metrics.quality_scale`` of the input, as ``dfc.codec`` measures its files: colours in
 [0, 1] as they are with data range 1, HDR colours tone-mapped ``x / (1 + x)`` with data range 1. The neural baselines
@@ -69,6 +72,8 @@ __all__ = ["LABELS", "METHODS", "TRUTH_SPP", "ZOOMS", "AnalyticReference", "Benc
            "square_pixels", "throughput", "write_outputs"]
 
 ZOOMS = (1, 10, 33, 100)
+SUPER_RESOLUTION = 2
+"""Default factor (per axis) of the super-resolution measure."""
 METHODS = ("dfc", "hashgrid", "relu", "raster", *CODECS)
 LABELS = {"dfc": "dfc", "hashgrid": "hash grid", "relu": "ReLU field", "raster": "raster (lossless half EXR)",
           "jpegxl": "JPEG XL", "avif": "AVIF", "webp": "WebP", "jpeg2k": "JPEG 2000"}
@@ -105,6 +110,8 @@ class BenchSettings:
         encode, as ``dfc encode --curves auto`` does (``dfc.geometry.sources.prune``)
     refine_curves : such curves are then refined against the pixels, as ``dfc encode --curves auto`` does
         (``dfc.geometry.sources.refine``; both by ``dfc.geometry.sources.auto.ready_curves``)
+    super_resolution : with a reference, also measure every method over the whole domain at this many times the
+        input's pixels per axis (module notes); 0: not measured
     """
 
     steps: int = IMAGE_STEPS
@@ -126,6 +133,7 @@ class BenchSettings:
     default_encode: bool = False
     prune_curves: bool = True
     refine_curves: bool = True
+    super_resolution: int = SUPER_RESOLUTION
 
     def check(self, budgeted: bool = False) -> None:
         """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
@@ -140,6 +148,8 @@ class BenchSettings:
         for key in ("steps", "batch_size", "render", "spp", "pixel_grid"):
             if getattr(self, key) < 1:
                 raise InputError(f"{key} must be ≥ 1, got {getattr(self, key)}")
+        if self.super_resolution != 0 and self.super_resolution < 2:
+            raise InputError(f"super_resolution must be 0 (not measured) or a factor ≥ 2, got {self.super_resolution}")
         if self.sweep_steps is not None and self.sweep_steps < 1:
             raise InputError(f"sweep_steps must be ≥ 1, got {self.sweep_steps}")
         if any(m in CODECS for m in methods):
@@ -365,6 +375,31 @@ def _measure_windows(models, windows, pixels, domain, reference, settings: Bench
     return tiles, psnr_, kernels, by_kernel, reference_psnr
 
 
+def _super_resolution(models, pixels, channels, domain, reference, settings: BenchSettings, scale: QualityScale,
+                      cache: dict) -> dict:
+    """The super-resolution measure (module notes): {"factor", "width", "height" (of the render), "reference_psnr"
+    (a Monte Carlo reference's own estimate, else None), "input": {kernel: dB} (the input raster upsampled),
+    "methods": {method: dB} (stored rasters through the better kernel)}. ``cache`` keeps the reference's render."""
+    from .baselines.upsample import PixelImage
+
+    H, W = pixels.shape[:2]
+    k = settings.super_resolution
+    width, height = k * W, k * H
+    key = ("super-resolution", width, height)
+    if key not in cache:
+        cache[key] = reference.window(domain, width, height, settings.spp)
+    ref, halves = cache[key]
+
+    def score(method: str, model) -> dict[str, float]:
+        return {v: scale.psnr(ref, pixel_render(view, domain, width, height, settings.spp, settings.device))
+                for v, view in _views(method, model).items()}
+
+    image = PixelImage(pixels, domain, channels, n_bytes=0, device=settings.device)
+    return {"factor": k, "width": width, "height": height,
+            "reference_psnr": None if halves is None else scale.psnr(*halves) + HALVES_DB,
+            "input": score("raster", image), "methods": {m: max(score(m, model).values()) for m, model in models.items()}}
+
+
 class _Exact:
     """An analytic value ``(N, 2) float64 -> (N, C)`` as a model for ``pixel_render`` (tensors in, tensors out)."""
 
@@ -454,7 +489,9 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     ``next_bytes``, ``kernel`` and ``psnr_by_kernel`` per window). ``results["failed"]``: {method: why} with
     ``keep_going``. ``results["quality_scale"]``: how every PSNR is measured (``QualityScale.describe``, with
     ``data_range`` and ``tonemap``); ``results["zoom_truth"]``: whether windows above 1× are measured;
-    ``results["reference_psnr"]`` (Monte Carlo references only): {str(zoom): [the reference's estimated PSNR]}.
+    ``results["reference_psnr"]`` (Monte Carlo references only): {str(zoom): [the reference's estimated PSNR]};
+    ``results["super_resolution"]`` (with a reference and ``settings.super_resolution``): ``_super_resolution``'s
+    record.
     """
     settings.check()
     progress = progress or (lambda message: None)
@@ -495,6 +532,11 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
         record[m]["psnr"] = scores[m]
         if m in kernels:
             record[m]["kernel"], record[m]["psnr_by_kernel"] = kernels[m], by_kernel[m]
+    upscaled = None
+    if reference is not None and settings.super_resolution:
+        progress(f"{settings.super_resolution}x super-resolution: rendering")
+        upscaled = _super_resolution(models, pixels, channels, domain, reference, settings, scale,
+                                     {} if cache is None else cache)
     results = {
         "input": name,
         "reference": reference.label if reference is not None else "input image (zoom 1 only; larger zooms "
@@ -518,6 +560,8 @@ def run_bench(pixels: np.ndarray, curves, channels: list[str], *, probes, settin
     }
     if any(v is not None for values in reference_psnr.values() for v in values):
         results["reference_psnr"] = reference_psnr
+    if upscaled is not None:
+        results["super_resolution"] = upscaled
     return BenchResult(results, tiles, blob)
 
 
@@ -618,6 +662,15 @@ def markdown_table(results: dict) -> str:
                      for z in big for k in kinds]
             kind_rows.append([label, *cells])
         text += "\n" + table("By probe kind", "Mean PSNR (dB) over the probes of each kind.", header, kind_rows)
+    sr = results.get("super_resolution")
+    if sr:
+        rows = [[results["methods"][m]["label"], f"{v:.2f}"] for m, v in sr["methods"].items()]
+        rows += [[f"the input, {kernel}", f"{v:.2f}"] for kernel, v in sr["input"].items()]
+        if sr["reference_psnr"] is not None:
+            rows.append(["reference itself (estimated)", f"{sr['reference_psnr']:.2f}"])
+        text += "\n" + table(f"{sr['factor']}× super-resolution", f"The whole domain at {sr['width']}×{sr['height']} "
+                             "pixels against the reference there (stored rasters through the better kernel); the "
+                             "input upsampled as it is, for comparison.", ["method", "PSNR (dB)"], rows)
     if results.get("failed"):
         text += "\n" + "\n".join(f"- {LABELS[m]}: not run ({why})" for m, why in results["failed"].items()) + "\n"
     return text

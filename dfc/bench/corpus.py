@@ -41,6 +41,11 @@ EDGE_TARGET_DB = 10.0
 """Issue 29's acceptance: median margin (dB) of dfc over the best codec at the edge probes of the zoom windows."""
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE_SCENE = REPO / "samples" / "scene" / "scene.xml"
+GLASS_SCENE = REPO / "samples" / "scene" / "glass.xml"
+"""A glass sphere, a gold sphere and a rough aluminium cube on a floor, lit by a small area light: hard shadows,
+reflections, refraction and caustics (HDR)."""
+TEXTURE_SCENE = REPO / "samples" / "scene" / "texture.xml"
+"""A diffuse sphere and cube with checkerboard textures on a floor (SDR)."""
 EXRS = ("RgbRampsDiagonal", "SquaresSwirls", "WideColorGamut")
 DIFFUSION = {"poivron": "poivron_orzan", "sunset": "sunset_illustration", "test-curve": "test_curve"}
 NOISY = ("poivron", "sunset")
@@ -234,6 +239,12 @@ def _cases() -> dict[str, CorpusCase]:
                    "256 spp, HDR, the scene's curves", _mitsuba(_shapes_path, "box", spp), zoom_truth=True),
         CorpusCase("mitsuba-shapes-auto", "the same shapes, Gaussian filter, 256 spp, HDR, --curves auto",
                    _mitsuba(_shapes_path, "gaussian", spp), auto=True, zoom_truth=True),
+        CorpusCase("mitsuba-glass-auto", "samples/scene/glass.xml (glass, gold and rough aluminium: reflections, "
+                   "refraction, caustics), Gaussian filter, 256 spp, HDR, --curves auto",
+                   _mitsuba(lambda: GLASS_SCENE, "gaussian", spp), auto=True, zoom_truth=True, needs="samples"),
+        CorpusCase("mitsuba-texture-auto", "samples/scene/texture.xml (checkerboard-textured diffuse objects), "
+                   "Gaussian filter, 256 spp, --curves auto", _mitsuba(lambda: TEXTURE_SCENE, "gaussian", spp),
+                   auto=True, zoom_truth=True, needs="samples"),
     ]
     cases += [CorpusCase(f"exr-{stem}", f"third-party EXR {stem}.exr, HDR, area-averaged, --curves auto, 1x only",
                          _exr(stem), auto=True, needs="shared", smooth=False) for stem in EXRS]
@@ -266,8 +277,8 @@ def select_cases(names: list[str] | None, shared: Path | None) -> tuple[list[Cor
         case = CASES[n]
         if case.needs == "shared" and (shared is None or not Path(shared).is_dir()):
             skipped[n] = f"third-party data directory {shared} not found"
-        elif case.needs == "samples" and not SAMPLE_SCENE.is_file():
-            skipped[n] = "samples/scene/scene.xml not found (a source checkout has it)"
+        elif case.needs == "samples" and not SAMPLE_SCENE.parent.is_dir():
+            skipped[n] = "samples/scene/ not found (a source checkout has it)"
         else:
             run.append(case)
     return run, skipped
@@ -365,7 +376,7 @@ def run_case(case: CorpusCase, settings, *, size: int = 256, bpp=CORPUS_BPP, sha
                       "smooth": case.smooth}
     record["zoom_margins"] = _zoom_margins([r.results for r in result.runs])
     if own_rate:
-        own = run_bench(**inputs, settings=replace(run_settings, target_bytes=None, zooms=(1,)),
+        own = run_bench(**inputs, settings=replace(run_settings, target_bytes=None, zooms=(1,), super_resolution=0),
                         progress=lambda m: progress(f"{case.name}: at dfc's own size: {m}"))
         record["own_rate"] = _own_rate(own.results, w * h)
     return record
@@ -461,12 +472,30 @@ def corpus_record(results: dict, skipped: dict[str, str], bpp=CORPUS_BPP) -> dic
         checks["zoom_min"] = min((v["min"] for v in zm.values()), default=None)
         edges = [v["edge_median"] for v in zm.values() if v["edge_median"] is not None]
         checks["zoom_edge_median_min"] = min(edges) if edges else None
+        if "super_resolution" in rec:
+            checks["super_margins"] = _super_margins(rec)
+            checks["super_above"] = all(m is not None and m["vs_input"] >= 0 and (m["vs_codecs"] or 0) >= 0
+                                        for m in checks["super_margins"])
         own = rec.get("own_rate")
         if own is not None:
             best = [c["psnr"] for c in own.get("codecs", {}).values()]
             checks["own_rate_margin"] = own["psnr"] - max(best) if "psnr" in own and best else None
         cases[name] = {"bd_rate": bd, "bd_rate_clean": bd_clean or None, "checks": checks, **rec}
     return {"corpus": True, "cases": cases, "skipped": skipped, "bpp": [float(b) for b in bpp]}
+
+
+def _super_margins(rec: dict) -> list[dict | None]:
+    """Per budget, dfc's super-resolution PSNR minus the input's upsampled (better kernel) and minus the best codec's
+    (``vs_input``, ``vs_codecs``: dB, the latter None without a codec); None where dfc made no file."""
+    sr = rec["super_resolution"]
+    input_db = max(sr["input"].values())
+    out = []
+    for i, point in enumerate(rec["curves"].get("dfc", [{}] * len(rec["budgets"]))):
+        codecs = [pts[i].get("super_psnr") for m, pts in rec["curves"].items() if m in CODECS]
+        codecs = [c for c in codecs if c is not None]
+        v = point.get("super_psnr")
+        out.append(None if v is None else {"vs_input": v - input_db, "vs_codecs": v - max(codecs) if codecs else None})
+    return out
 
 
 def _smallest(point: dict) -> int | None:
@@ -547,6 +576,26 @@ def corpus_markdown(record: dict) -> str:
                          "pixel of the case's input; HDR cases tone-mapped x / (1 + x). –: the method cannot meet the "
                          "budget (dfc: its smallest file is larger).", ["case", "method", *(f"{b:g} bpp" for b in bpp)],
                          rows)
+    srows = []
+    for name, c in cases.items():
+        sr = c.get("super_resolution")
+        if not sr:
+            continue
+        best_input = max(sr["input"], key=sr["input"].get)
+        srows.append([name, f"the input, {best_input}", *([f"{sr['input'][best_input]:.2f}"] * len(c["budgets"]))])
+        for m, pts in c["curves"].items():
+            srows.append([name, LABELS[m], *("–" if p.get("super_psnr") is None else f"{p['super_psnr']:.2f}"
+                                             for p in pts)])
+        margins = c["checks"]["super_margins"]
+        srows.append([name, "dfc − the input / − best codec", *(
+            "–" if g is None else f"{g['vs_input']:+.2f} / " + _fmt(g["vs_codecs"], "+.2f") for g in margins)])
+    if srows:
+        factor = next(c["super_resolution"]["factor"] for c in cases.values() if c.get("super_resolution"))
+        text += "\n" + table(f"{factor}× super-resolution", f"Every method rendered over the whole image at {factor}× "
+                             "the input's pixels per axis against the reference rendered there (cases with a "
+                             "reference); the codecs' decodes and the input itself upsampled by the better of bicubic "
+                             "and Lanczos. Issue 31 asks dfc to be above the input upsampled and above the codecs' "
+                             "decodes upsampled.", ["case", "method", *(f"{b:g} bpp" for b in bpp)], srows)
     zrows = []
     for name, c in cases.items():
         for z, v in c["zoom_margins"].items():

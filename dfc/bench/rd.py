@@ -5,8 +5,9 @@ actual size, or the budget itself when dfc cannot meet it (its smallest file is 
 as is any method that cannot). The reference renders of the windows are computed once for all budgets.
 
 ``results.json`` holds the curves — per method, one point per budget: bytes, 1× PSNR on every pixel and without
-the mixed ones, the mean PSNR over the probes at each zoom and per probe kind, and the configuration — and every
-budget's full record (``runs``). ``rd.png`` plots PSNR against bytes at 1× (all pixels, without mixed pixels) and at
+the mixed ones, the mean PSNR over the probes at each zoom and per probe kind, the configuration, and the
+super-resolution PSNR (``super_psnr``) when it is measured, the input's own upsampled figures then under the record's
+``super_resolution`` — and every budget's full record (``runs``). ``rd.png`` plots PSNR against bytes at 1× (all pixels, without mixed pixels) and at
 every zoom above 1 (mean over the probes); ``rd_probes.png`` one panel per probe kind and zoom above 1.
 """
 
@@ -98,13 +99,18 @@ def rd_record(runs: list[BenchResult], budgets: list[int]) -> dict:
                        for k in dict.fromkeys(kinds)}
             points.append({"budget": budget, "bytes": r["bytes"], "image_psnr": r["image_psnr"], "psnr": by_zoom,
                            "psnr_by_kind": by_kind, "config": r["config"], "configuration": config_label(m, r),
-                           **({"image_psnr_vs": r["image_psnr_vs"]} if "image_psnr_vs" in r else {})})
+                           **({"image_psnr_vs": r["image_psnr_vs"]} if "image_psnr_vs" in r else {}),
+                           **({"super_psnr": res["super_resolution"]["methods"][m]}
+                              if "super_resolution" in res else {})})
         curves[m] = points
     keep = ("input", "reference", "zoom_truth", "quality_scale", "data_range", "tonemap", "hdr", "image", "zooms",
             "probes", "probe_kinds", "windows")
     settings = {k: v for k, v in first["settings"].items() if k not in ("target_bytes", "keep_going")}
-    return {"rd": True, **{k: first[k] for k in keep}, "budgets": list(budgets), "settings": settings,
-            "curves": curves, "runs": [r.results for r in runs]}
+    record = {"rd": True, **{k: first[k] for k in keep}, "budgets": list(budgets), "settings": settings,
+              "curves": curves, "runs": [r.results for r in runs]}
+    if "super_resolution" in first:
+        record["super_resolution"] = {k: v for k, v in first["super_resolution"].items() if k != "methods"}
+    return record
 
 
 def _panels(record: dict) -> list[tuple[str, Callable[[dict], float | None]]]:
@@ -178,6 +184,11 @@ def rd_markdown(record: dict) -> str:
     if record["zoom_truth"]:
         measures += [(f"{_zkey(z)}×, mean of the probes", lambda p, k=_zkey(z): p["psnr"][k])
                      for z in record["zooms"] if z > 1]
+    sr = record.get("super_resolution")
+    if sr:
+        measures.append((f"{sr['factor']}× super-resolution ({sr['width']}×{sr['height']}; the input upsampled: "
+                         + ", ".join(f"{k} {v:.2f}" for k, v in sr["input"].items()) + " dB)",
+                         lambda p: p.get("super_psnr")))
     header = ["method", *(f"{b} B" for b in record["budgets"])]
     notes = (f"{record['input']}. Cells: PSNR in dB (bytes used). Reference: {record['reference']}; 1× truth: "
              f"{record['image']['truth']}. Configurations per budget in results.json (`curves`).")

@@ -85,6 +85,10 @@ def _budgets(ctx, param, value):
 @click.option("--corpus-own-rate", is_flag=True,
               help="--corpus: also encode dfc without a byte target (the default encode) and measure every codec at "
                    "that file's size, at 1x.")
+@click.option("--super-resolution", type=click.IntRange(min=0), default=2, show_default=True, metavar="K",
+              help="With a reference (an analytic or Mitsuba scene, the corpus's cases with zoom windows): also render "
+                   "every method over the whole image at K times the input's pixels per axis and measure it against "
+                   "the reference there, beside the input itself upsampled; 0: not measured.")
 @click.option("--list-scenes", is_flag=True, help="List the analytic scenes (and the corpus cases) and exit.")
 @click.option("--probe", "probes", type=POINT, multiple=True,
               help="Zoom centre X,Y in domain units (repeatable; default: points on edges, at junctions and stroke "
@@ -132,7 +136,7 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, super_resolution, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -177,7 +181,8 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
         _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, output,
-                zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles, seed, device, json_path, quiet)
+                zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles, seed, device, json_path, quiet,
+                super_resolution)
         return
     if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1 or not prune_curves \
             or not refine_curves or corpus_own_rate:
@@ -213,7 +218,7 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
                              render=render, spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, None),
                              target_bytes=target_bytes, max_triangles=max_triangles, seed=seed,
                              device=check_device(device), sweep=sweep, sweep_steps=sweep_steps, match_time=match_time,
-                             pixel_grid=pixel_grid)
+                             pixel_grid=pixel_grid, super_resolution=super_resolution)
     if rd:
         from ..bench.rd import require_matplotlib
 
@@ -322,7 +327,7 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
 
 
 def _corpus(cases, data, bpp, jobs, prune_curves, refine_curves, own_rate, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
-            seed, device, json_path, quiet) -> None:
+            seed, device, json_path, quiet, super_resolution) -> None:
     """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
     are given (they then apply to it too)."""
     from ..bench.compare import ZOOMS, BenchSettings
@@ -343,7 +348,7 @@ def _corpus(cases, data, bpp, jobs, prune_curves, refine_curves, own_rate, outpu
                              spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, CORPUS_METHODS),
                              max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=False,
                              match_time=False, pixel_grid=pixel_grid, keep_going=True, prune_curves=prune_curves,
-                             refine_curves=refine_curves)
+                             refine_curves=refine_curves, super_resolution=super_resolution)
     settings.check(budgeted=True)
     own = steps is not None or batch_size is not None
 

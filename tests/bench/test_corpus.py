@@ -54,6 +54,7 @@ def test_cases_cover_the_issues_corpus():
     summaries = " ".join(c.summary for c in CASES.values())
     assert sum(c.auto and "mitsuba" in n for n, c in CASES.items()) >= 2
     assert all(w in summaries for w in ("box filter", "Gaussian filter", "HDR", "point-sampled", "noise"))
+    assert all(w in summaries for w in ("glass", "gold", "textured"))  # issue 31's renders without their scene
     assert all(not c.zoom_truth for n, c in CASES.items() if n.startswith(("exr-", "dc-")))
     assert CORPUS_BPP == (0.25, 0.5, 1.0, 2.0)
 
@@ -133,6 +134,15 @@ def test_tiny_corpus_run_prints_bd_rates_and_writes_a_result_file(tmp_path, caps
     assert all(c["bytes"] <= own["bytes"] for c in own["codecs"].values())
     assert case["checks"]["own_rate_margin"] == pytest.approx(own["psnr"] - max(c["psnr"] for c in own["codecs"].values()))
     assert json.loads((tmp_path / "out" / "results.json").read_text())["cases"].keys() == {"point-shapes"}
+    sr = case["super_resolution"]  # point-shapes has a reference: 2x of the 48² input, the input itself upsampled
+    assert (sr["factor"], sr["width"], sr["height"]) == (2, 96, 96) and set(sr["input"]) == {"bicubic", "lanczos"}
+    margins = case["checks"]["super_margins"]
+    for i, g in enumerate(margins):
+        dfc, codecs = case["curves"]["dfc"][i], [case["curves"][m][i]["super_psnr"] for m in ("jpegxl", "jpeg2k")]
+        assert g["vs_input"] == pytest.approx(dfc["super_psnr"] - max(sr["input"].values()))
+        assert g["vs_codecs"] == pytest.approx(dfc["super_psnr"] - max(codecs))
+    assert case["checks"]["super_above"] == all(g["vs_input"] >= 0 and g["vs_codecs"] >= 0 for g in margins)
+    assert "2× super-resolution" in out and "the input, " in out
 
 
 @pytest.mark.parametrize("args,match", [

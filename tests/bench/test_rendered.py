@@ -87,8 +87,23 @@ def test_bench_on_a_mitsuba_scene_measures_every_zoom_against_its_renders(tmp_pa
         for z in ("1", "10"):
             assert all(v is not None and 0 < v < 100 for v in res["methods"][m]["psnr"][z])
     assert all(v is not None and v > 10 for z in ("1", "10") for v in res["reference_psnr"][z])
+    sr = res["super_resolution"]  # the film at 2x the input's pixels, rendered by Mitsuba
+    assert (sr["factor"], sr["width"], sr["height"]) == (2, 50, 40) and sr["reference_psnr"] > 10
+    assert set(sr["methods"]) == {"dfc", "raster"} and all(0 < v < 100 for v in sr["methods"].values())
+    assert set(sr["input"]) == {"bicubic", "lanczos"} and all(0 < v < 100 for v in sr["input"].values())
     table = (out / "results.md").read_text()
     assert "| reference itself (estimated) |" in table and "By probe kind" in table
+    assert "2× super-resolution" in table and "| the input, bicubic |" in table
+
+
+@pytest.mark.parametrize("name", ["mitsuba-glass-auto", "mitsuba-texture-auto"])
+def test_the_corpus_renders_without_their_scene_render_with_visible_curves(name):
+    from dfc.bench.corpus import CASES
+
+    inputs = CASES[name].build(16, BenchSettings(), lambda m: None)
+    pixels = inputs["pixels"]
+    assert pixels.shape == (16, 16, 3) and np.isfinite(pixels).all() and pixels.min() >= 0
+    assert inputs["curves"].n_curves >= 3 and len(inputs["probes"]) > 0  # silhouettes from the scene: the probes
 
 
 def test_a_render_and_curves_given_are_used(tmp_path):

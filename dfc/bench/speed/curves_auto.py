@@ -16,8 +16,9 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 at 33× and 100× of three encodes at equal bytes (``zoom_row``): the extracted, the true and the refined curves.
 
 ``--render CASE`` (repeatable) also runs on a path-traced render of a Mitsuba scene (``RENDER_CASES``: the corpus's
-renders, noise and all), whose true curves are the scene's own visible curves (``dfc curves SCENE.xml``): the
-curves ``dfc encode --curves auto`` finds there, with the filter it detects, before and after refinement. ``--image
+renders, noise and all), whose true curves are the scene's own visible curves (``dfc curves SCENE.xml``: silhouettes
+and creases; reflections, shadows and texture edges count as false): the curves ``dfc encode --curves auto`` finds
+there, with the filter it detects, before and after refinement. ``--image
 FILE`` (repeatable) also runs the extractor on images without ground truth and prints counts.
 """
 
@@ -32,7 +33,8 @@ import numpy as np
 from ...io.atomic import write_bytes_atomic
 
 _STEP = 0.01  # px between samples of a curve
-RENDER_CASES = ("mitsuba-box", "mitsuba-gaussian-auto", "mitsuba-shapes-hdr", "mitsuba-shapes-auto")
+RENDER_CASES = ("mitsuba-box", "mitsuba-gaussian-auto", "mitsuba-shapes-hdr", "mitsuba-shapes-auto",
+                "mitsuba-glass-auto", "mitsuba-texture-auto")
 """The ``dfc bench --corpus`` cases whose input is a Mitsuba render and whose scene gives the true curves."""
 
 
