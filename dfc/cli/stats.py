@@ -80,8 +80,10 @@ def command(input_path, json_path, quiet):
     rows += [(f"chunk {name}", f"{size} bytes") for name, size in s["chunk_bytes"].items()]
     found = s["encoder"].get("curves")
     if found:
-        rows.append(("curves", f"{found['curves']} curves ({found['pieces']} pieces) {found['extracted']}, settings "
-                               + ", ".join(f"{k}={v}" for k, v in found["settings"].items())))
+        settings = found.get("settings")  # earlier files recorded the extractor's settings, defaults included
+        rows.append(("curves", f"{found['curves']} curves ({found['pieces']} pieces) {found['extracted']}"
+                               + (f", pixel filter {found['pixel_filter']}" if found.get("pixel_filter") else "")
+                               + (", settings " + ", ".join(f"{k}={v}" for k, v in settings.items()) if settings else "")))
     width = max(len(k) for k, _ in rows)
     for key, value in rows:
         click.echo(f"{key:<{width}}  {value}")

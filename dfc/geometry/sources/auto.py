@@ -23,15 +23,15 @@ __all__ = ["find_curves", "ready_curves"]
 def find_curves(pixels: np.ndarray, pixel_filter: str = "auto"):
     """(curves, ``PixelFilter`` used, record) of ``pixels`` (H, W, C) linear values: the curves (``source`` "auto")
     over ``[0, W] × [0, H]``, the filter they were placed with, and the record a file's encoder info keeps of them
-    (``extracted``, ``extractor``, ``settings``, ``pixel_filter``, counts). Raises ``ImportError`` without
-    scikit-image, ``InputError`` for an unknown filter spec or an unusable image."""
+    (``extracted``, ``extractor``, ``pixel_filter``, counts; the extractor's settings are that software version's
+    defaults, so the record leaves them out as it leaves out every default: spec/dfield.md §5). Raises
+    ``ImportError`` without scikit-image, ``InputError`` for an unknown filter spec or an unusable image."""
     from .raster import RasterSettings, image_curves_filtered
 
     extractor = RasterSettings()
     curves, used, _ = image_curves_filtered(pixels, extractor, pixel_filter)
     record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
-              "settings": extractor.to_dict(), "pixel_filter": str(used), "curves": curves.n_curves,
-              "pieces": len(curves)}
+              "pixel_filter": str(used), "curves": curves.n_curves, "pieces": len(curves)}
     return replace(curves, source="auto"), used, record
 
 

@@ -82,7 +82,7 @@ class Pruned:
                 f"byte it costs; {self.cost[self.kept].sum():.0f} of {self.cost.sum():.0f} curve bytes kept)")
 
     def to_dict(self) -> dict:
-        return {"curves": int(len(self.kept)), "dropped": int((~self.kept).sum()), "lambda": float(self.lam),
+        return {"curves": int(len(self.kept)), "dropped": int((~self.kept).sum()), "lambda": float(f"{self.lam:.4g}"),
                 "bytes_kept": round(float(self.cost[self.kept].sum()), 1), "bytes": round(float(self.cost.sum()), 1)}
 
 
