@@ -180,9 +180,18 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
                 or probes or fit_curves_to_image:
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
-        _corpus(corpus_cases, corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, output,
-                zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles, seed, device, json_path, quiet,
-                super_resolution)
+        from ..bench.compare import ZOOMS, BenchSettings
+        from ..bench.corpus import CORPUS_METHODS
+
+        settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14,
+                                 render=render or 128, spp=spp, zooms=tuple(zooms) or ZOOMS,
+                                 methods=_methods(methods, CORPUS_METHODS), max_triangles=max_triangles, seed=seed,
+                                 device=check_device(device), sweep=False, match_time=False, pixel_grid=pixel_grid,
+                                 keep_going=True, prune_curves=prune_curves, refine_curves=refine_curves,
+                                 super_resolution=super_resolution)
+        _corpus(settings, cases=corpus_cases, data=corpus_data, bpp=corpus_bpp, jobs=corpus_jobs,
+                own_rate=corpus_own_rate, default_encode=steps is None and batch_size is None, size=size or 256,
+                output=output, json_path=json_path, quiet=quiet)
         return
     if any(v is not None for v in (corpus_cases, corpus_data, corpus_bpp)) or corpus_jobs != 1 or not prune_curves \
             or not refine_curves or corpus_own_rate:
@@ -326,13 +335,13 @@ def _solve(path, output, methods, steps, batch_size, size, max_triangles, seed, 
     _finish(markdown_table(results), output, json_path)
 
 
-def _corpus(cases, data, bpp, jobs, prune_curves, refine_curves, own_rate, output, zooms, methods, steps, batch_size, size, render, spp, pixel_grid, max_triangles,
-            seed, device, json_path, quiet, super_resolution) -> None:
-    """``dfc bench --corpus``: see ``dfc.bench.corpus``. dfc is encoded as by default unless --steps or --batch-size
-    are given (they then apply to it too)."""
-    from ..bench.compare import ZOOMS, BenchSettings
-    from ..bench.corpus import (CORPUS_BPP, CORPUS_METHODS, corpus_document, corpus_markdown, corpus_record,
-                                default_shared, run_corpus, select_cases)
+def _corpus(settings, *, cases: str | None, data: str | None, bpp: str | None, jobs: int, own_rate: bool,
+            default_encode: bool, size: int, output: str | None, json_path: str | None, quiet: bool) -> None:
+    """``dfc bench --corpus`` with ``settings`` (``BenchSettings``): see ``dfc.bench.corpus``. dfc is encoded as by
+    default when ``default_encode`` (no --steps or --batch-size: else they apply to it too); ``cases``, ``data``,
+    ``bpp``: the options' text."""
+    from ..bench.corpus import (CORPUS_BPP, corpus_document, corpus_markdown, corpus_record, default_shared,
+                                run_corpus, select_cases)
 
     try:
         bpp_values = CORPUS_BPP if bpp is None else sorted({float(v) for v in bpp.split(",") if v.strip()})
@@ -344,21 +353,14 @@ def _corpus(cases, data, bpp, jobs, prune_curves, refine_curves, own_rate, outpu
     names = None if cases is None else [n.strip() for n in cases.split(",") if n.strip()]
     shared = Path(data) if data else default_shared()
     selected, skipped = select_cases(names, shared)
-    settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14, render=render or 128,
-                             spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, CORPUS_METHODS),
-                             max_triangles=max_triangles, seed=seed, device=check_device(device), sweep=False,
-                             match_time=False, pixel_grid=pixel_grid, keep_going=True, prune_curves=prune_curves,
-                             refine_curves=refine_curves, super_resolution=super_resolution)
     settings.check(budgeted=True)
-    own = steps is not None or batch_size is not None
-
     progress = None if quiet else _progress
     for name, why in skipped.items():
         _progress(f"skipping corpus case {name}: {why}")
     if not selected:
         raise click.UsageError("no corpus case can run here: " + "; ".join(f"{n}: {w}" for n, w in skipped.items()))
-    results = run_corpus(selected, settings, size=size or 256, bpp=bpp_values, shared=shared, progress=progress,
-                         default_encode=not own, own_rate=own_rate, jobs=jobs)
+    results = run_corpus(selected, settings, size=size, bpp=bpp_values, shared=shared, progress=progress,
+                         default_encode=default_encode, own_rate=own_rate, jobs=jobs)
     record = corpus_record(results, skipped, bpp_values)
     text = corpus_markdown(record)
     doc = corpus_document(record, text)
