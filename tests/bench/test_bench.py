@@ -184,6 +184,7 @@ def test_bench_on_a_user_image_measures_zoom_one_only(tmp_path):
     (["--scene", "shapes", "--methods", "relu"], InputError),  # no dfc and no --bytes: no budget
     (["--scene", "hdr", "--methods", "webp", "--bytes", "5000"], InputError),  # an 8-bit codec on HDR input
     (["--scene", "shapes", "--methods", "relu,nope", "--bytes", "5000"], InputError),
+    (["--scene", "shapes", "--super-resolution", "1"], InputError),  # a factor 1 is the 1x measure: 0 or >= 2
 ])
 def test_bad_requests_fail_before_writing(tmp_path, args, error):
     result = CliRunner().invoke(cli, ["bench", *args, *TINY, "-o", str(tmp_path / "b")])
