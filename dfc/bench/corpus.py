@@ -239,12 +239,12 @@ def _cases() -> dict[str, CorpusCase]:
                    "256 spp, HDR, the scene's curves", _mitsuba(_shapes_path, "box", spp), zoom_truth=True),
         CorpusCase("mitsuba-shapes-auto", "the same shapes, Gaussian filter, 256 spp, HDR, --curves auto",
                    _mitsuba(_shapes_path, "gaussian", spp), auto=True, zoom_truth=True),
-        CorpusCase("mitsuba-glass-auto", "samples/scene/glass.xml (glass, gold and rough aluminium: reflections, "
-                   "refraction, caustics), Gaussian filter, 256 spp, HDR, --curves auto",
-                   _mitsuba(lambda: GLASS_SCENE, "gaussian", spp), auto=True, zoom_truth=True, needs="samples"),
-        CorpusCase("mitsuba-texture-auto", "samples/scene/texture.xml (checkerboard-textured diffuse objects), "
-                   "Gaussian filter, 256 spp, --curves auto", _mitsuba(lambda: TEXTURE_SCENE, "gaussian", spp),
-                   auto=True, zoom_truth=True, needs="samples"),
+        CorpusCase("mitsuba-glass-auto", "glass.xml: glass, gold, rough aluminium; Gaussian filter, 256 spp, HDR, "
+                   "--curves auto", _mitsuba(lambda: GLASS_SCENE, "gaussian", spp), auto=True, zoom_truth=True,
+                   needs="samples"),
+        CorpusCase("mitsuba-texture-auto", "texture.xml: checkerboard-textured diffuse objects; Gaussian filter, "
+                   "256 spp, --curves auto", _mitsuba(lambda: TEXTURE_SCENE, "gaussian", spp), auto=True,
+                   zoom_truth=True, needs="samples"),
     ]
     cases += [CorpusCase(f"exr-{stem}", f"third-party EXR {stem}.exr, HDR, area-averaged, --curves auto, 1x only",
                          _exr(stem), auto=True, needs="shared", smooth=False) for stem in EXRS]
