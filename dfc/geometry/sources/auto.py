@@ -26,10 +26,9 @@ def find_curves(pixels: np.ndarray, pixel_filter: str = "auto"):
     (``extracted``, ``extractor``, ``pixel_filter``, counts; the extractor's settings are that software version's
     defaults, so the record leaves them out as it leaves out every default: spec/dfield.md §5). Raises
     ``ImportError`` without scikit-image, ``InputError`` for an unknown filter spec or an unusable image."""
-    from .raster import RasterSettings, image_curves_filtered
+    from .raster import image_curves_filtered
 
-    extractor = RasterSettings()
-    curves, used, _ = image_curves_filtered(pixels, extractor, pixel_filter)
+    curves, used, _ = image_curves_filtered(pixels, None, pixel_filter)  # the extractor at its defaults
     record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
               "pixel_filter": str(used), "curves": curves.n_curves, "pieces": len(curves)}
     return replace(curves, source="auto"), used, record
