@@ -1,6 +1,7 @@
 """An independent ``.dfield`` decoder written from ``spec/dfield.md`` and ``spec/field.md`` alone.
 
-It exists to prove that the two documents suffice to evaluate a field: it imports nothing from dfc
+It exists to prove that the two documents suffice to evaluate a field (the header dictionary of ``HEAC`` is read
+from dfield.md itself): it imports nothing from dfc
 (only numpy, zstandard, DracoPy, constriction and pythoncdt, the libraries the spec names), skips CRCs and most validation, and evaluates ``f(x, t)`` in
 float64 throughout. Section numbers below are those of the spec documents ("D" = dfield.md,
 "F" = field.md).
@@ -15,9 +16,12 @@ Usage::
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import struct
 from fractions import Fraction
+from pathlib import Path
 
 import constriction
 import DracoPy
@@ -33,8 +37,23 @@ BISECTION_STEPS = 80
 """Bisection halvings of [0, 1] when solving U(t) = u (F §5.4); 53 already reach binary64 resolution."""
 
 
-def _unzstd(data: bytes) -> bytes:
-    return zstandard.ZstdDecompressor().decompress(bytes(data))
+def _unzstd(data: bytes, dictionary: bytes | None = None) -> bytes:
+    raw = None if dictionary is None else zstandard.ZstdCompressionDict(dictionary,
+                                                                       dict_type=zstandard.DICT_TYPE_RAWCONTENT)
+    return (zstandard.ZstdDecompressor() if raw is None else zstandard.ZstdDecompressor(dict_data=raw)).decompress(
+        bytes(data))
+
+
+def header_dictionary(spec: Path = Path(__file__).parents[1] / "spec" / "dfield.md") -> bytes:
+    """The header dictionary of D Appendix A, read from the spec itself (its lines joined; length and SHA-256
+    checked against the ones the appendix states)."""
+    appendix = spec.read_text(encoding="utf-8").split("## Appendix A.", 1)[1]
+    size, digest = re.search(r"(\d+) bytes of ASCII whose SHA-256 is\s+`([0-9a-f]{64})`", appendix).groups()
+    block = appendix.split("```text\n", 1)[1].split("```", 1)[0]
+    dictionary = "".join(block.splitlines()).encode("ascii")
+    if len(dictionary) != int(size) or hashlib.sha256(dictionary).hexdigest() != digest:
+        raise ValueError("the spec's header dictionary does not match its stated length and SHA-256")
+    return dictionary
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -281,14 +300,31 @@ def _decode_mlpq(data: bytes) -> dict[str, np.ndarray]:
     n, _ = struct.unpack_from("<II", data)
     raw = _unzstd(data[8:])
     records = [struct.unpack_from("<60sI4I", raw, 80 * i) for i in range(n)]
-    bits = list(raw[80 * n:81 * n])
-    pos = 81 * n
+    names = [name.rstrip(b"\0").decode("ascii") for name, *_ in records]
     shapes = [tuple(dims[:rank]) for _, rank, *dims in records]
+    return _integer_tensors(raw, 81 * n, names, shapes, list(raw[80 * n:81 * n]))
+
+
+def _decode_mlpc(data: bytes, header: dict) -> dict[str, np.ndarray]:
+    """MLPC chunk -> name -> float64 array (D §6.8): the tensors F §7 implies, MLPQ's scales and values."""
+    bits, coding = data[0], data[1]
+    m = header["model"]
+    sizes = [m["dim"] + 2 * m["oneblob_bins"]] + [m["hidden"]] * m["layers"] + [len(header["channels"])]
+    names, shapes = [], []
+    for i, (n_in, n_out) in enumerate(zip(sizes, sizes[1:])):
+        names += [f"layers.{i}.weight", f"layers.{i}.bias"]
+        shapes += [(n_out, n_in), (n_out,)]
+    raw = _unzstd(data[4:]) if coding else bytes(data[4:])
+    return _integer_tensors(raw, 0, names, shapes, [bits if len(s) == 2 else 0 for s in shapes])
+
+
+def _integer_tensors(raw: bytes, pos: int, names: list[str], shapes: list[tuple], bits: list[int]):
+    """D §6.7 from the scales on: name -> float64 array."""
     n_scales = sum(shape[0] for b, shape in zip(bits, shapes) if b)
     scales = np.frombuffer(raw, "<f2", n_scales, pos).astype(np.float32)
     pos += 2 * n_scales
     out, at = {}, 0
-    for (name, _, *_), b, shape in zip(records, bits, shapes):
+    for name, b, shape in zip(names, bits, shapes):
         size = int(np.prod(shape))
         if b == 0:
             values = np.frombuffer(raw, "<f2", size, pos).astype(np.float64)
@@ -299,7 +335,7 @@ def _decode_mlpq(data: bytes) -> dict[str, np.ndarray]:
             pos += np.dtype(dtype).itemsize * size
             values = (q * scales[at:at + shape[0], None]).astype(np.float64)  # binary32 product
             at += shape[0]
-        out[name.rstrip(b"\0").decode("ascii")] = values.reshape(shape)
+        out[name] = values.reshape(shape)
     return out
 
 
@@ -330,10 +366,13 @@ class ReferenceField:
     @classmethod
     def from_bytes(cls, blob: bytes) -> ReferenceField:
         ch = read_chunks(blob)
-        header = json.loads(_unzstd(ch[b"HEAD"]))
+        header = json.loads(_unzstd(ch[b"HEAD"]) if b"HEAD" in ch else _unzstd(ch[b"HEAC"], header_dictionary()))
         vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"], ch[b"TOPO"])
         edges, ctri, ends, cp = _decode_topology(ch[b"TOPO"], vertices, faces)
-        mlp = _decode_mlp(ch[b"MLPW"]) if b"MLPW" in ch else _decode_mlpq(ch[b"MLPQ"])
+        if b"MLPC" in ch:
+            mlp = _decode_mlpc(ch[b"MLPC"], header)
+        else:
+            mlp = _decode_mlp(ch[b"MLPW"]) if b"MLPW" in ch else _decode_mlpq(ch[b"MLPQ"])
         field = cls(header, vertices, faces, edges, ctri, ends, cp, mlp)
         bank = _decode_features(ch[b"FEAT"]) if b"FEAT" in ch else _decode_feac(ch[b"FEAC"], *field.row_graph())
         if bank.shape[1] != field.n_rows:

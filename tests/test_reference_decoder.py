@@ -16,16 +16,19 @@ from dfc.field.model import FieldModel
 from dfc.field.side import chord_frames, in_sliver
 from dfc.geometry.curves import Curves, elevate
 from dfc.geometry.triangulate import triangulate
-from dfc.io.container import decode_dfield, encode_dfield
+from dfc.io.container import HEADER_DICTIONARY, decode_dfield, encode_dfield
 from dfc.io.dfield import from_contents, to_contents
 from dfc.io.meshcodec import roundtrip_mesh
 
-from .reference_decoder import ReferenceField, read_chunks
+from .reference_decoder import ReferenceField, header_dictionary, read_chunks
 
 GOLDEN = Path(__file__).parent / "golden" / "valid"
 ATOL = 1e-4
-CODINGS = {"1.0": {"feature_coding": "plain"}, "1.1": {"feature_coding": "predicted", "weight_bits": 6}}
-"""Chunk encodings of a version: FEAT + MLPW (1.0) or FEAC + MLPQ (1.1)."""
+CODINGS = {"1.0": {"feature_coding": "plain", "compact": False},
+           "1.1": {"feature_coding": "predicted", "weight_bits": 6, "compact": False},
+           "1.4": {"feature_coding": "predicted", "weight_bits": 6}}
+"""Chunk encodings of a version: HEAD + FEAT + MLPW (1.0), HEAD + FEAC + MLPQ (1.1) or HEAC + FEAC + MLPC (1.4)."""
+CHUNKS = {"1.0": {b"HEAD", b"FEAT", b"MLPW"}, "1.1": {b"HEAD", b"FEAC", b"MLPQ"}, "1.4": {b"HEAC", b"FEAC", b"MLPC"}}
 
 
 def _junction() -> Curves:
@@ -51,7 +54,7 @@ def mesh(scene):
     return roundtrip_mesh(triangulate(curves(), max_triangles=max_triangles), 16)
 
 
-def _encode(mesh, *, n_slices=1, times=None, seed=0, coding="1.1", **model_kw):
+def _encode(mesh, *, n_slices=1, times=None, seed=0, coding="1.4", **model_kw):
     """The bytes of a random field on ``mesh`` written with the ``CODINGS[coding]`` chunks, decoded by dfc (a model)
     and by the reference decoder."""
     field = FeatureField(mesh, dim=5, seed=seed, n_slices=n_slices, times=times)
@@ -147,7 +150,7 @@ def test_geometry_and_layout_match_dfc(scene, mesh):
 @pytest.mark.parametrize("coding", sorted(CODINGS))
 def test_static_relu_field_agrees_everywhere_continuous(mesh, coding):
     model, ref, blob = _encode(mesh, activation="relu", coding=coding)
-    assert ({b"FEAT", b"MLPW"} if coding == "1.0" else {b"FEAC", b"MLPQ"}) <= set(read_chunks(blob))
+    assert CHUNKS[coding] <= set(read_chunks(blob))
     edges, sides = _edges(ref)
     disc = {tuple(e) for e in np.sort(mesh.disc_edges, axis=1).tolist()}
     cont = np.array([tuple(e) not in disc for e in edges.tolist()])
@@ -217,7 +220,7 @@ def test_raw_mesh_encoding_agrees():
     _agree(model, ref, np.concatenate([_random(ref, 1000, 8), _curve_points(ref, (0.5,))[0]]))
 
 
-@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived"])
+@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived", "tiny_compact"])
 def test_golden_tiny_file_agrees(name):
     blob = (GOLDEN / f"{name}.dfield").read_bytes()
     model = from_contents(decode_dfield(blob))
@@ -257,3 +260,8 @@ def test_spec_sliver_example():
     xy = torch.tensor([[1.0, 0.4], [1.0, 0.6]], dtype=torch.float64)
     got = in_sliver(xy, origin.expand(2, 2), u_axis.expand(2, 2), v_axis.expand(2, 2), local.expand(2, 4, 2))
     assert got.tolist() == [True, False]
+
+
+def test_the_header_dictionary_is_the_spec_s():
+    """dfc compresses HEAC against exactly the bytes spec Appendix A lists (its stated length and SHA-256 hold)."""
+    assert header_dictionary() == HEADER_DICTIONARY

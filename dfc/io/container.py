@@ -8,8 +8,10 @@ header and the chunks' fixed-size fields only (for ``dfc stats``). The mesh chun
 ``dfc.io.meshcodec``, the predicted, range-coded feature bank (``FEAC``) in ``dfc.io.featcodec``.
 
 Content 1.1 adds two critical chunks, each an alternative to a 1.0 chunk in the same place: ``FEAC`` for ``FEAT``
-and ``MLPQ`` (integer weight matrices) for ``MLPW``. A 1.0 decoder refuses them as unknown critical chunks; this
-one reads both versions.
+and ``MLPQ`` (integer weight matrices) for ``MLPW``; content 1.4 two more, for a smaller fixed part: ``HEAC`` (the
+header JSON compressed against ``HEADER_DICTIONARY``) for ``HEAD`` and ``MLPC`` (``MLPQ`` without its tensor table,
+which the header's model implies) for ``MLPQ``. An older decoder refuses them as unknown critical chunks; this one
+reads every version.
 """
 
 from __future__ import annotations
@@ -51,11 +53,12 @@ __all__ = [
     "SIGNATURE",
     "CONTAINER_VERSION",
     "CONTENT_VERSION",
+    "HEADER_DICTIONARY",
 ]
 
 SIGNATURE = b"\x89DFL\r\n\x1a\n"
 CONTAINER_VERSION = (1, 1)
-CONTENT_VERSION = (1, 3)
+CONTENT_VERSION = (1, 4)
 MAX_FILE_BYTES = 2**30
 MAX_CHUNK = 2**30 - 1
 MAX_HEADER_JSON = 2**20
@@ -63,7 +66,8 @@ MAX_JSON_DEPTH = 32
 MAX_ROWS, MAX_K, MAX_S, MAX_FEATURE_ELEMENTS = 2**27, 256, 4096, 2**28
 MAX_TENSORS, MAX_RANK, MAX_MLP_ELEMENTS = 256, 4, 2**24
 MAX_CHANNELS = 64
-CRITICAL_ORDER = ((b"HEAD",), (b"MESH",), (b"TOPO",), (b"FEAT", b"FEAC"), (b"MLPW", b"MLPQ"), (b"DEND",))
+CRITICAL_ORDER = ((b"HEAD", b"HEAC"), (b"MESH",), (b"TOPO",), (b"FEAT", b"FEAC"), (b"MLPW", b"MLPQ", b"MLPC"),
+                  (b"DEND",))
 """The critical chunks in file order; each position holds exactly one of its alternatives."""
 FEATURE_CODINGS = ("plain", "predicted")
 """``encode_dfield``'s feature codings: ``FEAT`` (zstd of the quantised bank) or ``FEAC`` (``dfc.io.featcodec``)."""
@@ -72,6 +76,24 @@ _FILE_HEAD = struct.Struct("<8sHHI")
 _FEAT_HEAD = struct.Struct("<IIHBx")
 _MLP_HEAD = struct.Struct("<II")
 _MLP_RECORD = struct.Struct("<60sI4I")
+_MLPC_HEAD = struct.Struct("<BBH")
+HEADER_DICTIONARY = (
+    b'{"format":"dfield","content_version":[1,4],"domain":[0.0,0.0,512.0,512.0],"channels":["u"],"channels":'
+    b'["R","G","B"],"value_transform":"identity","value_transform":"log","times":null,"times":[0.0,"model":{"dim":'
+    b'5,"hidden":16,"layers":2,"activation":"tanh","oneblob_bins":0},"encoder":{"software":"dfc 0.1.0","source":'
+    b'"auto","refine":0,"steps":1000,"feature_bits":8,"weight_bits":8,"target_bytes":4096,"target_psnr":40.0,'
+    b'"seed":1,"pixel_filter":"point","input":"samples ","samples":4096,"input":"FEM ","input":"frames ","input":'
+    b'"image 512x512","pixels":262144,"hdr":true,"curves":{"extracted":"from the image (--curves auto)","extractor":'
+    b'"dfc.geometry.sources.raster.image_curves","pixel_filter":"gaussian:0.5","curves":4,"pieces":74,"pruned":'
+    b'{"curves":4,"dropped":0,"lambda":0.0,"bytes_kept":5482.0,"bytes":5482.0},"refined":{"pixels":1812,'
+    b'"misfit_before":0.0,"misfit_after":0.0,"max_move_px":0.4}}},"value_transform":"affine","value_offset":'
+    b'[0.0,0.0,0.0],"value_scale":[1.0,1.0,1.0],"times":null,"model":{"dim":5,"hidden":32,"layers":2,"activation":'
+    b'"relu","oneblob_bins":0},"encoder":{"software":"dfc 0.1.0","source":"","refine":0,"steps":3000,"hidden":32,'
+    b'"feature_bits":10,"pixel_filter":"box:4","input":"image 256x256","pixels":65536,"hdr":false},"pixel_size":'
+    b'[1.0,1.0],"pixel_filter":"box","format":"dfield","content_version":[1,4]}'
+)
+"""Spec Appendix A: the raw-content zstd dictionary ``HEAC`` frames are compressed against (typical header JSON
+text; its bytes are part of the format and never change)."""
 _NAME = re.compile(r"[A-Za-z0-9_.]{1,60}")
 _TRANSFORMS = ("identity", "log", "affine")
 _VALUE_MAP_KEYS = ("value_offset", "value_scale")
@@ -177,8 +199,10 @@ def _reject_constant(name):
     raise FormatError(f"HEAD: header JSON contains {name}, which is not JSON")
 
 
-def _parse_header(data: bytes) -> dict:
-    text = decompress(data, _frame_size(data, MAX_HEADER_JSON, "HEAD"), "HEAD")
+def _parse_header(data: bytes, ctype: bytes = b"HEAD") -> dict:
+    """The header JSON of a ``HEAD`` or ``HEAC`` chunk (spec §5), parsed but not checked (``_check_header``)."""
+    chunk, dictionary = ctype.decode(), HEADER_DICTIONARY if ctype == b"HEAC" else None
+    text = decompress(data, _frame_size(data, MAX_HEADER_JSON, chunk), chunk, dictionary)
     # bound json.loads' recursion first; brackets inside strings only make this over-count
     if _bracket_depth(text) > MAX_JSON_DEPTH:
         raise FormatError(f"HEAD: header JSON nested deeper than {MAX_JSON_DEPTH}")
@@ -415,12 +439,18 @@ def _mlpq_table(data) -> tuple[bytes, list[tuple[str, tuple[int, ...]]], list[in
 
 def _decode_mlpq(data) -> dict[str, np.ndarray]:
     raw, table, bits, pos = _mlpq_table(data)
+    return _integer_tensors(raw, pos, table, bits, "MLPQ")
+
+
+def _integer_tensors(raw: bytes, pos: int, table, bits: list[int], chunk: str) -> dict[str, np.ndarray]:
+    """Name -> float32 array of the scales and values at ``raw[pos:]`` (spec §6.7, from the scales on; the rest of
+    ``raw`` must be exactly these) of the tensors ``table`` with ``bits`` per tensor (0: float16)."""
     n_scales = sum(shape[0] for b, (_, shape) in zip(bits, table) if b)
     if len(raw) != pos + 2 * n_scales + sum(_mlpq_width(b) * math.prod(s) for b, (_, s) in zip(bits, table)):
-        raise FormatError("MLPQ: payload size does not match its tensors")
+        raise FormatError(f"{chunk}: payload size does not match its tensors")
     scales = np.frombuffer(raw, "<f2", n_scales, pos).astype(np.float32)
     if not (np.all(np.isfinite(scales)) and np.all(scales > 0)):
-        raise FormatError("MLPQ: a scale is not finite and positive")
+        raise FormatError(f"{chunk}: a scale is not finite and positive")
     pos += 2 * n_scales
     out, at_scale = {}, 0
     for b, (name, shape) in zip(bits, table):
@@ -430,12 +460,12 @@ def _decode_mlpq(data) -> dict[str, np.ndarray]:
         else:
             q = np.frombuffer(raw, "<i1" if b <= 8 else "<i2", size, pos).astype(np.int32)
             if np.abs(q).max(initial=0) > 2 ** (b - 1) - 1:
-                raise FormatError(f"MLPQ: tensor {name} holds an integer outside ±(2**{b - 1} - 1)")
+                raise FormatError(f"{chunk}: tensor {name} holds an integer outside ±(2**{b - 1} - 1)")
             scale = scales[at_scale:at_scale + shape[0]]
             at_scale += shape[0]
             values = dequantize_weights(torch.from_numpy(q.reshape(shape)), torch.from_numpy(scale)).numpy()
         if not np.all(np.isfinite(values)):
-            raise FormatError(f"MLPQ: tensor {name} has a value that is not finite")
+            raise FormatError(f"{chunk}: tensor {name} has a value that is not finite")
         out[name] = values.reshape(shape)
         pos += _mlpq_width(b) * size
     return out
@@ -444,8 +474,14 @@ def _decode_mlpq(data) -> dict[str, np.ndarray]:
 def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> bytes:
     """``MLPQ`` data: rank-2 tensors as ``weight_bits``-bit integers per row, the others as float16."""
     head = _encode_mlp(mlp, level)  # checks names, shapes and finiteness; its table is ours
-    n = len(mlp)
-    records = head[_MLP_HEAD.size:_MLP_HEAD.size + n * _MLP_RECORD.size]
+    records = head[_MLP_HEAD.size:_MLP_HEAD.size + len(mlp) * _MLP_RECORD.size]
+    bits, body = _integer_body(mlp, weight_bits)
+    return head[:_MLP_HEAD.size] + compress(records + bytes(bits) + body, level)
+
+
+def _integer_body(mlp: dict[str, np.ndarray], weight_bits: int) -> tuple[list[int], bytes]:
+    """(bits per tensor, scales then values, spec §6.7) of ``mlp``: rank-2 tensors as ``weight_bits``-bit integers
+    per row, the others as float16."""
     bits, scales, values = [], [], []
     for w in mlp.values():
         w = np.asarray(w, dtype=np.float32)
@@ -457,13 +493,67 @@ def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> by
         else:
             bits.append(0)
             values.append(w.astype("<f2").tobytes())
-    return head[:_MLP_HEAD.size] + compress(records + bytes(bits) + b"".join(scales) + b"".join(values), level)
+    return bits, b"".join(scales) + b"".join(values)
+
+
+# ----------------------------------------------------------------------------------------------- MLPC
+def _mlpc_table(header: dict, width: int) -> list[tuple[str, tuple[int, ...]]]:
+    """The decoder tensors (name, shape) that the header's ``model`` and ``channels`` imply (field spec §7), in file
+    order, for a feature bank ``width`` wide; ``FormatError`` when the model is malformed or outside the limits."""
+    m = header["model"]
+    dims = [m.get(k) for k in ("dim", "hidden", "layers", "oneblob_bins")]
+    if not (all(type(v) is int for v in dims) and dims[0] >= 1 and dims[1] >= 1 and dims[2] >= 0 and dims[3] >= 0):
+        raise FormatError("HEAD: model needs integers dim >= 1, hidden >= 1, layers >= 0, oneblob_bins >= 0")
+    dim, hidden, layers, bins = dims
+    if dim != width:
+        raise FormatError(f"HEAD: model dim {dim}, the feature bank is {width} wide")
+    if 2 * (layers + 1) > MAX_TENSORS:
+        raise FormatError(f"MLPC: {2 * (layers + 1)} tensors, the limit is {MAX_TENSORS}")
+    sizes = [dim + 2 * bins] + [hidden] * layers + [len(header["channels"])]
+    if sum(o * (i + 1) for i, o in zip(sizes, sizes[1:])) > MAX_MLP_ELEMENTS:
+        raise FormatError(f"MLPC: the model has more than {MAX_MLP_ELEMENTS} parameters")
+    return [entry for i, (n_in, n_out) in enumerate(zip(sizes, sizes[1:]))
+            for entry in ((f"layers.{i}.weight", (n_out, n_in)), (f"layers.{i}.bias", (n_out,)))]
+
+
+def _mlpc_head(data) -> int:
+    """The weight bits of ``MLPC`` data, its fixed fields checked."""
+    if len(data) < _MLPC_HEAD.size:
+        raise FormatError("MLPC: chunk shorter than its fixed fields")
+    bits, coding, reserved = _MLPC_HEAD.unpack_from(data)
+    if not MIN_WEIGHT_BITS <= bits <= MAX_WEIGHT_BITS:
+        raise FormatError(f"MLPC: {bits} weight bits, expected {MIN_WEIGHT_BITS}..{MAX_WEIGHT_BITS}")
+    if coding > 1 or reserved:
+        raise FormatError("MLPC: unknown value coding or reserved field not zero")
+    return bits
+
+
+def _decode_mlpc(data, table) -> dict[str, np.ndarray]:
+    """``MLPC`` data -> name -> float32 array of the tensors ``table`` (``_mlpc_table``)."""
+    bits = [_mlpc_head(data) if len(shape) == 2 else 0 for _, shape in table]
+    size = sum(2 * shape[0] * (b > 0) + _mlpq_width(b) * math.prod(shape) for b, (_, shape) in zip(bits, table))
+    payload = bytes(data[_MLPC_HEAD.size:])
+    raw = decompress(payload, size, "MLPC") if data[1] else payload
+    return _integer_tensors(raw, 0, table, bits, "MLPC")
+
+
+def _encode_mlpc(mlp: dict[str, np.ndarray], table, weight_bits: int, level: int) -> bytes:
+    """``MLPC`` data for the tensors ``table`` the header implies: ``MLPQ``'s scales and values, zstd-compressed
+    only when that is smaller."""
+    _encode_mlp(mlp, level)  # checks names, shapes and finiteness
+    if [(name, tuple(np.shape(mlp[name]))) if name in mlp else None for name, _ in table] != table or len(mlp) != len(table):
+        raise FormatError(f"cannot write: MLP tensors {sorted(mlp)} are not the ones the header's model implies")
+    _, body = _integer_body({name: mlp[name] for name, _ in table}, weight_bits)
+    packed = compress(body, level)
+    coded = len(packed) < len(body)
+    return _MLPC_HEAD.pack(weight_bits, int(coded), 0) + (packed if coded else body)
 
 
 # ----------------------------------------------------------------------------------------------- public API
 def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATURE_BITS,
                   compression_level: int = 19, feature_coding: str = "predicted", weight_bits: int | None = None,
-                  mesh_validated: bool = False, mesh_coding: str = "derived") -> tuple[bytes, dict[str, int]]:
+                  mesh_validated: bool = False, mesh_coding: str = "derived",
+                  compact: bool = True) -> tuple[bytes, dict[str, int]]:
     """Serialise ``contents``; return (file bytes, bytes per chunk type incl. framing; the file adds 16).
 
     ``contents.mesh`` should be ``roundtrip_mesh(mesh, bits)``, the view the features were fitted on: it is
@@ -475,7 +565,8 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
     contents would make an invalid file and ``MeshError`` when the mesh is invalid. ``mesh_validated``: the mesh
     came from ``roundtrip_mesh`` (validated there), so it is not validated again (``encode_roundtripped``).
     ``mesh_coding``: "derived" stores the mesh with the derived encoding when that is smaller and exact (content
-    1.3), "draco" never (``dfc.io.meshcodec.encode_roundtripped``).
+    1.3), "draco" never (``dfc.io.meshcodec.encode_roundtripped``). ``compact``: the header as ``HEAC`` and integer
+    weights as ``MLPC`` (content 1.4); False writes ``HEAD`` and ``MLPQ``, as content 1.3 did.
     """
     F = np.asarray(contents.features)
     if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
@@ -503,10 +594,15 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
         features = (b"FEAC", encode_feac(F.astype(np.float32), feature_bits, _layout(contents.mesh)))
     else:
         features = (b"FEAT", _encode_features(F.astype(np.float32), feature_bits, compression_level))
-    mlp = ((b"MLPW", _encode_mlp(contents.mlp, compression_level)) if weight_bits is None
-           else (b"MLPQ", _encode_mlpq(contents.mlp, weight_bits, compression_level)))
-    parts = [(b"HEAD", compress(text, compression_level)), (b"MESH", mesh_data), (b"TOPO", topo_data), features,
-             mlp, (b"DEND", b"")]
+    if weight_bits is None:
+        mlp = (b"MLPW", _encode_mlp(contents.mlp, compression_level))
+    elif compact:
+        mlp = (b"MLPC", _encode_mlpc(contents.mlp, _mlpc_table(header, F.shape[2]), weight_bits, compression_level))
+    else:
+        mlp = (b"MLPQ", _encode_mlpq(contents.mlp, weight_bits, compression_level))
+    head = ((b"HEAC", compress(text, compression_level, HEADER_DICTIONARY)) if compact
+            else (b"HEAD", compress(text, compression_level)))
+    parts = [head, (b"MESH", mesh_data), (b"TOPO", topo_data), features, mlp, (b"DEND", b"")]
     body = b"".join(_chunk(t, d) for t, d in parts)
     sizes = {t.decode(): 12 + len(d) + (-len(d) % 4) for t, d in parts}
     if _FILE_HEAD.size + len(body) > MAX_FILE_BYTES:
@@ -529,7 +625,7 @@ def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
     chunks, _ = _split_chunks(buf)
     feat_type, feat = _one(chunks, CRITICAL_ORDER[3])
     info = _feat_info(feat, feat_type.decode())
-    header = _parse_header(bytes(chunks[b"HEAD"]))
+    header = _parse_header(*_header_chunk(chunks))
     _check_header(header, info["slices"])
     mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"], full_validate=validate_mesh)
     layout = _layout(mesh)
@@ -543,8 +639,17 @@ def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
     else:
         features = _decode_features(feat)
     mlp_type, mlp = _one(chunks, CRITICAL_ORDER[4])
-    weights = _decode_mlp(mlp) if mlp_type == b"MLPW" else _decode_mlpq(mlp)
+    if mlp_type == b"MLPC":
+        weights = _decode_mlpc(mlp, _mlpc_table(header, info["width"]))
+    else:
+        weights = _decode_mlp(mlp) if mlp_type == b"MLPW" else _decode_mlpq(mlp)
     return DfieldContents(header=header, mesh=mesh, features=features, mlp=weights)
+
+
+def _header_chunk(chunks: dict) -> tuple[bytes, bytes]:
+    """(data, type) of the file's ``HEAD`` or ``HEAC`` chunk."""
+    ctype, data = _one(chunks, CRITICAL_ORDER[0])
+    return bytes(data), ctype
 
 
 def _layout(mesh: Mesh):
@@ -575,12 +680,14 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
     chunks, sizes = _split_chunks(buf)
     feat_type, feat_data = _one(chunks, CRITICAL_ORDER[3])
     feat = {**_feat_info(feat_data, feat_type.decode()), "coding": "predicted, range-coded" if feat_type == b"FEAC" else "zstd"}
-    header = _parse_header(bytes(chunks[b"HEAD"]))
+    header = _parse_header(*_header_chunk(chunks))
     _check_header(header, feat["slices"])
     mlp_type, mlp_data = _one(chunks, CRITICAL_ORDER[4])
     if mlp_type == b"MLPQ":  # its table is compressed with the weights
         _, table, bits, _ = _mlpq_table(mlp_data)
         weight_bits = sorted({b for b in bits if b})
+    elif mlp_type == b"MLPC":  # the header implies its table
+        table, weight_bits = _mlpc_table(header, feat["width"]), [_mlpc_head(mlp_data)]
     else:
         table, weight_bits = _mlp_table(mlp_data), []
     extra = {}

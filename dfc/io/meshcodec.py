@@ -67,22 +67,30 @@ _BARY_LIMIT = 127.0
 
 
 # ----------------------------------------------------------------------------------------------- zstd
-def compress(data: bytes, level: int) -> bytes:
-    """One zstd frame declaring its content size (spec §1, ``Z(n)``)."""
-    return zstandard.ZstdCompressor(level=level, write_content_size=True).compress(data)
+def compress(data: bytes, level: int, dictionary: bytes | None = None) -> bytes:
+    """One zstd frame declaring its content size (spec §1, ``Z(n)``); with ``dictionary``, compressed against
+    that raw-content dictionary and declaring no dictionary ID (spec §5, ``HEAC``)."""
+    if dictionary is None:
+        return zstandard.ZstdCompressor(level=level, write_content_size=True).compress(data)
+    return zstandard.ZstdCompressor(level=level, write_content_size=True, write_dict_id=False,
+                                    dict_data=_raw_dictionary(dictionary)).compress(data)
 
 
-def decompress(frame: bytes, size: int, chunk: str) -> bytes:
+def decompress(frame: bytes, size: int, chunk: str, dictionary: bytes | None = None) -> bytes:
     """Decode a ``Z(size)`` payload of chunk ``chunk``; ``FormatError`` unless it is exactly one frame of
-    declared content size ``size`` (checked before decompressing, so nothing larger is ever allocated)."""
+    declared content size ``size`` (checked before decompressing, so nothing larger is ever allocated).
+    ``dictionary``: the raw-content dictionary the frame was compressed with (it must declare no dictionary ID)."""
     try:
-        declared = zstandard.get_frame_parameters(frame).content_size
+        params = zstandard.get_frame_parameters(frame)
     except zstandard.ZstdError:
         raise FormatError(f"{chunk}: zstd frame header is corrupt") from None
-    if declared != size:
-        raise FormatError(f"{chunk}: zstd frame declares {declared} bytes, expected {size}")
+    if params.content_size != size:
+        raise FormatError(f"{chunk}: zstd frame declares {params.content_size} bytes, expected {size}")
+    if params.dict_id:
+        raise FormatError(f"{chunk}: zstd frame declares dictionary {params.dict_id}, none is defined")
     try:
-        dctx = zstandard.ZstdDecompressor(max_window_size=_MAX_WINDOW)
+        dctx = zstandard.ZstdDecompressor(max_window_size=_MAX_WINDOW, **(
+            {} if dictionary is None else {"dict_data": _raw_dictionary(dictionary)}))
         out = dctx.decompress(frame, max_output_size=size)
         # the one-shot call ignores trailing bytes; replay the (now known-good) frame to find them
         obj = dctx.decompressobj()
@@ -93,6 +101,10 @@ def decompress(frame: bytes, size: int, chunk: str) -> bytes:
     if len(out) != size or trailing:
         raise FormatError(f"{chunk}: zstd payload has the wrong size or bytes after its frame")
     return out
+
+
+def _raw_dictionary(content: bytes) -> zstandard.ZstdCompressionDict:
+    return zstandard.ZstdCompressionDict(content, dict_type=zstandard.DICT_TYPE_RAWCONTENT)
 
 
 # ----------------------------------------------------------------------------------------------- helpers

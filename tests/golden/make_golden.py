@@ -6,7 +6,9 @@ valid/tiny_coded.dfield holds the same contents with the 1.1 chunks (FEAC, MLPQ)
 file of content version 1.1). valid/tiny_units.dfield (content 1.2) holds them with value_transform "affine": an
 offset and scale per channel (``VALUE_MAP``); valid/tiny_filter.dfield (content 1.2) adds the header keys
 pixel_size and pixel_filter; both are frozen the same way. valid/tiny_derived.dfield (content 1.3) stores the mesh
-with the derived encoding (MESH encoding 2: the triangles rebuilt by the decoder). Each valid file has a .json with
+with the derived encoding (MESH encoding 2: the triangles rebuilt by the decoder), frozen too.
+valid/tiny_compact.dfield (content 1.4) is what the encoder writes now: the header as HEAC (compressed against the
+spec's header dictionary) and the weights as MLPC (no tensor table). Each valid file has a .json with
 the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
 a deliberate format change (update the spec's change log)."""
 
@@ -64,9 +66,20 @@ def main():
                                   "pixel_filter": "gaussian:0.5"})
     if not (HERE / "valid" / "tiny_filter.dfield").exists():
         _write_valid("tiny_filter", encode_dfield(filtered, compression_level=19, weight_bits=6, mesh_coding="draco")[0])
-    derived = encode_dfield(c, compression_level=19, weight_bits=6, mesh_coding="derived")[0]
+    if not (HERE / "valid" / "tiny_derived.dfield").exists():
+        _write_valid("tiny_derived", encode_dfield(c, compression_level=19, weight_bits=6, mesh_coding="derived",
+                                                   compact=False)[0])
+    derived = (HERE / "valid" / "tiny_derived.dfield").read_bytes()
     assert split(derived)[1][1][0] == 2, "the tiny mesh is no longer stored with the derived encoding"
-    _write_valid("tiny_derived", derived)
+    compact = encode_dfield(c, compression_level=19, weight_bits=6)[0]
+    assert [t for t, _ in split(compact)] == [b"HEAC", b"MESH", b"TOPO", b"FEAC", b"MLPC", b"DEND"]
+    _write_valid("tiny_compact", compact)
+    short_mlpc = [list(x) for x in split(compact)]
+    mlpc = short_mlpc[4][1]
+    body = zstandard.ZstdDecompressor().decompress(mlpc[4:]) if mlpc[1] else mlpc[4:]
+    short_mlpc[4][1] = mlpc[:1] + b"\0" + mlpc[2:4] + body[:-1]
+    dict_id = [list(x) for x in split(compact)]
+    dict_id[0][1] = _declare_dictionary_id(dict_id[0][1], 7)
     truncated_mesh = [list(x) for x in split(derived)]
     truncated_mesh[1][1] = truncated_mesh[1][1][:-2]
     unknown = [list(x) for x in split(coded)]
@@ -100,9 +113,21 @@ def main():
         "value_scale_not_positive": join(zero_scale),
         "pixel_filter_unknown": join(unknown),
         "derived_mesh_truncated": join(truncated_mesh),
+        "mlpc_payload_short": join(short_mlpc),
+        "heac_declares_dictionary_id": join(dict_id),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)
+
+
+def _declare_dictionary_id(frame: bytes, dict_id: int) -> bytes:
+    """``frame`` (a zstd frame without a dictionary ID) declaring the one-byte ``dict_id`` (RFC 8878 §3.1.1.1)."""
+    descriptor = frame[4]
+    assert descriptor & 0x03 == 0, "the frame already declares a dictionary ID"
+    at = 5 if descriptor & 0x20 else 6  # the ID follows the window descriptor, absent in single-segment frames
+    out = frame[:4] + bytes([descriptor | 0x01]) + frame[5:at] + bytes([dict_id]) + frame[at:]
+    assert zstandard.get_frame_parameters(out).dict_id == dict_id
+    return out
 
 
 if __name__ == "__main__":

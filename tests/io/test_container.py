@@ -16,6 +16,7 @@ from dfc.field.layout import build_layout
 from dfc.field.quantize import dequantize_weights, quantize_weights
 from dfc.io.container import (
     CONTENT_VERSION,
+    HEADER_DICTIONARY,
     DfieldContents,
     decode_dfield,
     encode_dfield,
@@ -49,8 +50,11 @@ def contents():
     return make_contents()
 
 
-CODINGS = {"1.0": {"feature_coding": "plain"}, "1.1": {"feature_coding": "predicted", "weight_bits": 6}}
-"""Chunk encodings: FEAT + MLPW (as a 1.0 writer) or FEAC + MLPQ."""
+CODINGS = {"1.0": {"feature_coding": "plain", "compact": False},
+           "1.1": {"feature_coding": "predicted", "weight_bits": 6, "compact": False},
+           "1.4": {"feature_coding": "predicted", "weight_bits": 6}}
+"""Chunk encodings: HEAD + FEAT + MLPW (as a 1.0 writer), HEAD + FEAC + MLPQ (1.1) or HEAC + FEAC + MLPC (1.4)."""
+CHUNK_TYPES = {"1.0": ["HEAD", "FEAT", "MLPW"], "1.1": ["HEAD", "FEAC", "MLPQ"], "1.4": ["HEAC", "FEAC", "MLPC"]}
 
 
 @pytest.fixture(scope="module", params=sorted(CODINGS))
@@ -105,9 +109,10 @@ def outcome(data: bytes) -> str:
 
 
 def with_header(blob, header: bytes | dict, level=3) -> bytes:
+    """``blob`` with its header chunk (``HEAD`` or ``HEAC``) holding ``header``."""
     text = header if isinstance(header, bytes) else json.dumps(header).encode()
     ch = split(blob)
-    ch[0][1] = compress(text, level)
+    ch[0][1] = compress(text, level, HEADER_DICTIONARY if ch[0][0] == b"HEAC" else None)
     return join(ch)
 
 
@@ -133,8 +138,8 @@ def test_round_trip(tmp_path, contents, coding):
     assert out.mesh.domain == contents.mesh.domain
     assert {k: v for k, v in out.header.items() if k not in ("format", "content_version")} == contents.header
     assert out.header["content_version"] == list(CONTENT_VERSION)
-    assert sorted(sizes) == sorted(["HEAD", "MESH", "TOPO", "DEND"] + (["FEAT", "MLPW"] if "weight_bits" not in coding
-                                                                     else ["FEAC", "MLPQ"]))
+    version = next(v for v, c in CODINGS.items() if c == coding)
+    assert sorted(sizes) == sorted(["MESH", "TOPO", "DEND"] + CHUNK_TYPES[version])
 
 
 @pytest.mark.parametrize("bits", [1, 4, 12, 16])
@@ -170,6 +175,55 @@ def test_info_reads_counts_without_decoding(tmp_path, contents):
                                 "coding": "predicted, range-coded"}
     assert info["mlp"]["parameters"] == sum(w.size for w in contents.mlp.values()) and info["mlp"]["weight_bits"] == [7]
     assert info["header"]["channels"] == ["r", "g", "b"]
+
+
+def test_compact_chunks_hold_the_same_contents_in_fewer_bytes(contents):
+    """Content 1.4: HEAC and MLPC decode to exactly what HEAD and MLPQ decode to, and are smaller."""
+    compact, sizes = encode_dfield(contents, weight_bits=6)
+    plain, plain_sizes = encode_dfield(contents, weight_bits=6, compact=False)
+    a, b = decode_dfield(compact), decode_dfield(plain)
+    assert a.header == b.header and np.array_equal(a.features, b.features)
+    assert a.mlp.keys() == b.mlp.keys() and all(np.array_equal(a.mlp[k], b.mlp[k]) for k in b.mlp)
+    assert sizes["HEAC"] < plain_sizes["HEAD"] and sizes["MLPC"] < plain_sizes["MLPQ"]
+    assert read_dfield_info_bytes(compact)["mlp"] == read_dfield_info_bytes(plain)["mlp"]
+
+
+def read_dfield_info_bytes(blob: bytes) -> dict:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "f.dfield"
+        path.write_bytes(blob)
+        return read_dfield_info(path)
+
+
+def test_mlpc_takes_its_tensors_from_the_header_model(contents):
+    blob = encode_dfield(contents, weight_bits=6)[0]
+    ch, head = split(blob), decode_dfield(blob).header
+    for change, match in (({"hidden": 15}, "payload size|declares"), ({"dim": 4}, "dim 4"),
+                          ({"hidden": 2**23}, "parameters"), ({"layers": 200}, "tensors"),
+                          ({"hidden": 0}, "integers"), ({"hidden": 16.0}, "integers")):
+        with pytest.raises(FormatError, match=match):
+            decode_dfield(with_header(blob, {**head, "model": {**head["model"], **change}}))
+    coding = ch[4][1][1]
+    for fixed, match in ((bytes([1, coding, 0, 0]), "weight bits"), (bytes([17, coding, 0, 0]), "weight bits"),
+                         (bytes([6, 2, 0, 0]), "coding"), (bytes([6, coding, 1, 0]), "reserved")):
+        bad = [list(c) for c in ch]
+        bad[4][1] = fixed + ch[4][1][4:]
+        with pytest.raises(FormatError, match=match):
+            decode_dfield(join(bad))
+    other = {**contents.header, "model": {**contents.header["model"], "hidden": 8}}
+    with pytest.raises(FormatError, match="implies"):
+        encode_dfield(DfieldContents(other, contents.mesh, contents.features, contents.mlp), weight_bits=6)
+
+
+def test_mlpc_compresses_its_values_only_when_that_is_smaller(contents):
+    plain = split(encode_dfield(contents, weight_bits=6)[0])[4][1]  # random weights: a frame would be larger
+    flat = {k: np.full_like(w, 0.5) for k, w in contents.mlp.items()}  # one integer and one scale repeated
+    blob = encode_dfield(DfieldContents(contents.header, contents.mesh, contents.features, flat), weight_bits=6)[0]
+    coded = split(blob)[4][1]
+    assert plain[1] == 0 and coded[1] == 1 and len(coded) < len(plain)
+    assert all(np.allclose(w, flat[k], rtol=1e-3) for k, w in decode_dfield(blob).mlp.items())
 
 
 def test_writing_is_deterministic_and_atomic(tmp_path, contents):
@@ -261,7 +315,8 @@ def test_huge_counts_are_refused_without_allocating(blob, value):
     """Every u32 count in every chunk's fixed fields, set huge (CRC fixed): refused, small peak memory."""
     chunks = split(blob)
     tracemalloc.start()
-    mlp_counts = [0, 4, 68, 72] if chunks[4][0] == b"MLPW" else [0, 4]  # MLPQ compresses its tensor table
+    # MLPQ compresses its tensor table; MLPC has none (its fixed fields: bit depth, coding, reserved)
+    mlp_counts = {b"MLPW": [0, 4, 68, 72], b"MLPQ": [0, 4], b"MLPC": [0]}[chunks[4][0]]
     for k, offsets in ((1, [4, 8]), (2, [0, 4, 8]), (3, [0, 4]), (4, mlp_counts)):
         for off in offsets:
             ch = [list(c) for c in chunks]
