@@ -541,7 +541,7 @@ def _encode_mlpc(mlp: dict[str, np.ndarray], table, weight_bits: int, level: int
     """``MLPC`` data for the tensors ``table`` the header implies: ``MLPQ``'s scales and values, zstd-compressed
     only when that is smaller."""
     _encode_mlp(mlp, level)  # checks names, shapes and finiteness
-    if [(name, tuple(np.shape(mlp[name]))) if name in mlp else None for name, _ in table] != table or len(mlp) != len(table):
+    if {name: tuple(np.shape(w)) for name, w in mlp.items()} != dict(table):
         raise FormatError(f"cannot write: MLP tensors {sorted(mlp)} are not the ones the header's model implies")
     _, body = _integer_body({name: mlp[name] for name, _ in table}, weight_bits)
     packed = compress(body, level)
