@@ -38,10 +38,9 @@ BISECTION_STEPS = 80
 
 
 def _unzstd(data: bytes, dictionary: bytes | None = None) -> bytes:
-    raw = None if dictionary is None else zstandard.ZstdCompressionDict(dictionary,
-                                                                       dict_type=zstandard.DICT_TYPE_RAWCONTENT)
-    return (zstandard.ZstdDecompressor() if raw is None else zstandard.ZstdDecompressor(dict_data=raw)).decompress(
-        bytes(data))
+    raw = {} if dictionary is None else {
+        "dict_data": zstandard.ZstdCompressionDict(dictionary, dict_type=zstandard.DICT_TYPE_RAWCONTENT)}
+    return zstandard.ZstdDecompressor(**raw).decompress(bytes(data))
 
 
 def header_dictionary(spec: Path = Path(__file__).parents[1] / "spec" / "dfield.md") -> bytes:

@@ -199,9 +199,9 @@ def _reject_constant(name):
     raise FormatError(f"HEAD: header JSON contains {name}, which is not JSON")
 
 
-def _parse_header(data: bytes, ctype: bytes = b"HEAD") -> dict:
+def _parse_header(ctype: bytes, data) -> dict:
     """The header JSON of a ``HEAD`` or ``HEAC`` chunk (spec §5), parsed but not checked (``_check_header``)."""
-    chunk, dictionary = ctype.decode(), HEADER_DICTIONARY if ctype == b"HEAC" else None
+    chunk, dictionary, data = ctype.decode(), HEADER_DICTIONARY if ctype == b"HEAC" else None, bytes(data)
     text = decompress(data, _frame_size(data, MAX_HEADER_JSON, chunk), chunk, dictionary)
     # bound json.loads' recursion first; brackets inside strings only make this over-count
     if _bracket_depth(text) > MAX_JSON_DEPTH:
@@ -392,6 +392,13 @@ def _decode_mlp(data) -> dict[str, np.ndarray]:
 
 
 def _encode_mlp(mlp: dict[str, np.ndarray], level: int) -> bytes:
+    table, flat = _mlp_records(mlp)
+    return table + compress(flat.tobytes(), level)
+
+
+def _mlp_records(mlp: dict[str, np.ndarray]) -> tuple[bytes, np.ndarray]:
+    """(``MLPW``'s fixed fields and tensor table, spec §6.4; every value as float16, flattened) of ``mlp``, whose
+    names, shapes, sizes and float16 finiteness are checked (``FormatError``)."""
     if not 1 <= len(mlp) <= MAX_TENSORS:
         raise FormatError(f"cannot write: the MLP needs 1..{MAX_TENSORS} tensors, got {len(mlp)}")
     records, values = [], []
@@ -409,7 +416,7 @@ def _encode_mlp(mlp: dict[str, np.ndarray], level: int) -> bytes:
     flat = np.concatenate(values)
     if flat.size > MAX_MLP_ELEMENTS:
         raise FormatError(f"cannot write: the MLP has {flat.size} weights, the limit is {MAX_MLP_ELEMENTS}")
-    return _MLP_HEAD.pack(len(mlp), flat.size) + b"".join(records) + compress(flat.tobytes(), level)
+    return _MLP_HEAD.pack(len(mlp), flat.size) + b"".join(records), flat
 
 
 def _mlpq_width(bits: int) -> int:
@@ -473,10 +480,9 @@ def _integer_tensors(raw: bytes, pos: int, table, bits: list[int], chunk: str) -
 
 def _encode_mlpq(mlp: dict[str, np.ndarray], weight_bits: int, level: int) -> bytes:
     """``MLPQ`` data: rank-2 tensors as ``weight_bits``-bit integers per row, the others as float16."""
-    head = _encode_mlp(mlp, level)  # checks names, shapes and finiteness; its table is ours
-    records = head[_MLP_HEAD.size:_MLP_HEAD.size + len(mlp) * _MLP_RECORD.size]
+    table, _ = _mlp_records(mlp)
     bits, body = _integer_body(mlp, weight_bits)
-    return head[:_MLP_HEAD.size] + compress(records + bytes(bits) + body, level)
+    return table[:_MLP_HEAD.size] + compress(table[_MLP_HEAD.size:] + bytes(bits) + body, level)
 
 
 def _integer_body(mlp: dict[str, np.ndarray], weight_bits: int) -> tuple[list[int], bytes]:
@@ -530,7 +536,8 @@ def _mlpc_head(data) -> int:
 
 def _decode_mlpc(data, table) -> dict[str, np.ndarray]:
     """``MLPC`` data -> name -> float32 array of the tensors ``table`` (``_mlpc_table``)."""
-    bits = [_mlpc_head(data) if len(shape) == 2 else 0 for _, shape in table]
+    weight_bits = _mlpc_head(data)
+    bits = [weight_bits if len(shape) == 2 else 0 for _, shape in table]
     size = sum(2 * shape[0] * (b > 0) + _mlpq_width(b) * math.prod(shape) for b, (_, shape) in zip(bits, table))
     payload = bytes(data[_MLPC_HEAD.size:])
     raw = decompress(payload, size, "MLPC") if data[1] else payload
@@ -540,7 +547,7 @@ def _decode_mlpc(data, table) -> dict[str, np.ndarray]:
 def _encode_mlpc(mlp: dict[str, np.ndarray], table, weight_bits: int, level: int) -> bytes:
     """``MLPC`` data for the tensors ``table`` the header implies: ``MLPQ``'s scales and values, zstd-compressed
     only when that is smaller."""
-    _encode_mlp(mlp, level)  # checks names, shapes and finiteness
+    _mlp_records(mlp)  # checks names, shapes and finiteness
     if {name: tuple(np.shape(w)) for name, w in mlp.items()} != dict(table):
         raise FormatError(f"cannot write: MLP tensors {sorted(mlp)} are not the ones the header's model implies")
     _, body = _integer_body({name: mlp[name] for name, _ in table}, weight_bits)
@@ -625,7 +632,7 @@ def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
     chunks, _ = _split_chunks(buf)
     feat_type, feat = _one(chunks, CRITICAL_ORDER[3])
     info = _feat_info(feat, feat_type.decode())
-    header = _parse_header(*_header_chunk(chunks))
+    header = _parse_header(*_one(chunks, CRITICAL_ORDER[0]))
     _check_header(header, info["slices"])
     mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"], full_validate=validate_mesh)
     layout = _layout(mesh)
@@ -644,12 +651,6 @@ def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
     else:
         weights = _decode_mlp(mlp) if mlp_type == b"MLPW" else _decode_mlpq(mlp)
     return DfieldContents(header=header, mesh=mesh, features=features, mlp=weights)
-
-
-def _header_chunk(chunks: dict) -> tuple[bytes, bytes]:
-    """(data, type) of the file's ``HEAD`` or ``HEAC`` chunk."""
-    ctype, data = _one(chunks, CRITICAL_ORDER[0])
-    return bytes(data), ctype
 
 
 def _layout(mesh: Mesh):
@@ -680,7 +681,7 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
     chunks, sizes = _split_chunks(buf)
     feat_type, feat_data = _one(chunks, CRITICAL_ORDER[3])
     feat = {**_feat_info(feat_data, feat_type.decode()), "coding": "predicted, range-coded" if feat_type == b"FEAC" else "zstd"}
-    header = _parse_header(*_header_chunk(chunks))
+    header = _parse_header(*_one(chunks, CRITICAL_ORDER[0]))
     _check_header(header, feat["slices"])
     mlp_type, mlp_data = _one(chunks, CRITICAL_ORDER[4])
     if mlp_type == b"MLPQ":  # its table is compressed with the weights

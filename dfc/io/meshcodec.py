@@ -70,10 +70,8 @@ _BARY_LIMIT = 127.0
 def compress(data: bytes, level: int, dictionary: bytes | None = None) -> bytes:
     """One zstd frame declaring its content size (spec §1, ``Z(n)``); with ``dictionary``, compressed against
     that raw-content dictionary and declaring no dictionary ID (spec §5, ``HEAC``)."""
-    if dictionary is None:
-        return zstandard.ZstdCompressor(level=level, write_content_size=True).compress(data)
-    return zstandard.ZstdCompressor(level=level, write_content_size=True, write_dict_id=False,
-                                    dict_data=_raw_dictionary(dictionary)).compress(data)
+    with_dictionary = {} if dictionary is None else {"dict_data": _raw_dictionary(dictionary), "write_dict_id": False}
+    return zstandard.ZstdCompressor(level=level, write_content_size=True, **with_dictionary).compress(data)
 
 
 def decompress(frame: bytes, size: int, chunk: str, dictionary: bytes | None = None) -> bytes:
