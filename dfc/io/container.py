@@ -119,42 +119,42 @@ class DfieldContents:
 def _check_header(h, S: int) -> None:
     """Spec §5 checks of a parsed header for a bank of S slices; raise FormatError."""
     if not isinstance(h, dict):
-        raise FormatError("HEAD: header JSON is not an object")
+        raise FormatError("header: JSON is not an object")
     missing = {"format", "content_version", "domain", "channels", "value_transform", "times", "model"} - set(h)
     if missing:
-        raise FormatError(f"HEAD: missing keys {sorted(missing)}")
+        raise FormatError(f"header: missing keys {sorted(missing)}")
     if h["format"] != "dfield":
-        raise FormatError(f"HEAD: format is {h['format']!r}, expected 'dfield'")
+        raise FormatError(f"header: format is {h['format']!r}, expected 'dfield'")
     cv = h["content_version"]
     if not (isinstance(cv, list) and len(cv) == 2 and all(type(v) is int and v >= 0 for v in cv)):
-        raise FormatError("HEAD: content_version must be [major, minor]")
+        raise FormatError("header: content_version must be [major, minor]")
     if cv[0] != CONTENT_VERSION[0]:
-        raise FormatError(f"HEAD: unsupported content version {cv[0]}.{cv[1]}")
+        raise FormatError(f"header: unsupported content version {cv[0]}.{cv[1]}")
     d = h["domain"]
     if not (isinstance(d, list) and len(d) == 4 and all(_is_number(v) for v in d) and d[0] < d[2] and d[1] < d[3]):
-        raise FormatError("HEAD: domain must be [x0, y0, x1, y1] with x0 < x1 and y0 < y1")
+        raise FormatError("header: domain must be [x0, y0, x1, y1] with x0 < x1 and y0 < y1")
     ch = h["channels"]
     if not (isinstance(ch, list) and 1 <= len(ch) <= MAX_CHANNELS and all(isinstance(c, str) and c for c in ch)
             and len(set(ch)) == len(ch)):
-        raise FormatError(f"HEAD: channels must be 1..{MAX_CHANNELS} distinct non-empty strings")
+        raise FormatError(f"header: channels must be 1..{MAX_CHANNELS} distinct non-empty strings")
     if h["value_transform"] not in _TRANSFORMS:
-        raise FormatError(f"HEAD: value_transform must be one of {_TRANSFORMS}")
+        raise FormatError(f"header: value_transform must be one of {_TRANSFORMS}")
     _check_value_map(h)
     times = h["times"]
     if times is None:
         if S != 1:
-            raise FormatError(f"HEAD: times is null but the feature bank has {S} slices")
+            raise FormatError(f"header: times is null but the feature bank has {S} slices")
     elif not (isinstance(times, list) and len(times) == S and all(_is_number(t) for t in times)
               and all(a < b for a, b in zip(times, times[1:]))):
-        raise FormatError(f"HEAD: times must be {S} finite numbers, strictly increasing")
+        raise FormatError(f"header: times must be {S} finite numbers, strictly increasing")
     size = h.get("pixel_size")
     if size is not None and not (isinstance(size, list) and len(size) == 2 and all(_is_number(v) and v > 0
                                                                                   for v in size)):
-        raise FormatError("HEAD: pixel_size must be null or two positive finite numbers")
+        raise FormatError("header: pixel_size must be null or two positive finite numbers")
     if "pixel_filter" in h:
         _check_pixel_filter(h["pixel_filter"])
     if not isinstance(h["model"], dict) or not isinstance(h.get("encoder", {}), dict):
-        raise FormatError("HEAD: model and encoder must be objects")
+        raise FormatError("header: model and encoder must be objects")
 
 
 def _check_pixel_filter(spec) -> None:
@@ -165,7 +165,7 @@ def _check_pixel_filter(spec) -> None:
     try:
         parse(spec)
     except InputError as e:
-        raise FormatError(f"HEAD: pixel_filter: {e}") from None
+        raise FormatError(f"header: pixel_filter: {e}") from None
 
 
 def _check_value_map(h) -> None:
@@ -173,15 +173,15 @@ def _check_value_map(h) -> None:
     present = [k for k in _VALUE_MAP_KEYS if k in h]
     if h["value_transform"] != "affine":
         if present:
-            raise FormatError(f"HEAD: {present[0]} is only allowed with value_transform 'affine'")
+            raise FormatError(f"header: {present[0]} is only allowed with value_transform 'affine'")
         return
     n = len(h["channels"])
     for key in _VALUE_MAP_KEYS:
         v = h.get(key)
         if not (isinstance(v, list) and len(v) == n and all(_is_number(x) for x in v)):
-            raise FormatError(f"HEAD: value_transform 'affine' needs {key}: {n} finite numbers, one per channel")
+            raise FormatError(f"header: value_transform 'affine' needs {key}: {n} finite numbers, one per channel")
     if not all(x > 0 for x in h["value_scale"]):
-        raise FormatError("HEAD: value_scale must be > 0")
+        raise FormatError("header: value_scale must be > 0")
 
 
 def _is_number(v) -> bool:
@@ -191,12 +191,12 @@ def _is_number(v) -> bool:
 def _no_duplicates(pairs):
     keys = [k for k, _ in pairs]
     if len(set(keys)) != len(keys):
-        raise FormatError("HEAD: header JSON repeats a key")
+        raise FormatError("header: JSON repeats a key")
     return dict(pairs)
 
 
 def _reject_constant(name):
-    raise FormatError(f"HEAD: header JSON contains {name}, which is not JSON")
+    raise FormatError(f"header: JSON contains {name}, which is not JSON")
 
 
 def _parse_header(ctype: bytes, data) -> dict:
@@ -205,11 +205,11 @@ def _parse_header(ctype: bytes, data) -> dict:
     text = decompress(data, _frame_size(data, MAX_HEADER_JSON, chunk), chunk, dictionary)
     # bound json.loads' recursion first; brackets inside strings only make this over-count
     if _bracket_depth(text) > MAX_JSON_DEPTH:
-        raise FormatError(f"HEAD: header JSON nested deeper than {MAX_JSON_DEPTH}")
+        raise FormatError(f"header: JSON nested deeper than {MAX_JSON_DEPTH}")
     try:
         h = json.loads(text.decode("utf-8"), object_pairs_hook=_no_duplicates, parse_constant=_reject_constant)
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(f"HEAD: header is not UTF-8 JSON ({exc})") from None
+        raise FormatError(f"header: not UTF-8 JSON ({exc})") from None
     return h
 
 
@@ -509,10 +509,10 @@ def _mlpc_table(header: dict, width: int) -> list[tuple[str, tuple[int, ...]]]:
     m = header["model"]
     dims = [m.get(k) for k in ("dim", "hidden", "layers", "oneblob_bins")]
     if not (all(type(v) is int for v in dims) and dims[0] >= 1 and dims[1] >= 1 and dims[2] >= 0 and dims[3] >= 0):
-        raise FormatError("HEAD: model needs integers dim >= 1, hidden >= 1, layers >= 0, oneblob_bins >= 0")
+        raise FormatError("header: model needs integers dim >= 1, hidden >= 1, layers >= 0, oneblob_bins >= 0")
     dim, hidden, layers, bins = dims
     if dim != width:
-        raise FormatError(f"HEAD: model dim {dim}, the feature bank is {width} wide")
+        raise FormatError(f"header: model dim {dim}, the feature bank is {width} wide")
     if 2 * (layers + 1) > MAX_TENSORS:
         raise FormatError(f"MLPC: {2 * (layers + 1)} tensors, the limit is {MAX_TENSORS}")
     sizes = [dim + 2 * bins] + [hidden] * layers + [len(header["channels"])]

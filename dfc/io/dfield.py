@@ -78,7 +78,7 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldMode
     arch = h["model"]
     missing = [k for k in _ARCH_KEYS if k not in arch]
     if missing:
-        raise FormatError(f"HEAD: model lacks {missing}")
+        raise FormatError(f"header: model lacks {missing}")
     affine = h["value_transform"] == "affine"
     config = {**{k: arch[k] for k in _ARCH_KEYS}, "transform": "identity" if affine else h["value_transform"],
               "channels": h["channels"], "n_slices": int(contents.features.shape[0]), "times": h["times"]}
