@@ -175,20 +175,25 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
         for name, case in CASES.items():
             click.echo(f"corpus case {name}: {case.summary}")
         return
+
+    def common() -> dict:  # the BenchSettings fields of every comparison, corpus or single
+        from ..bench.compare import ZOOMS, BenchSettings
+
+        return {"steps": steps or BenchSettings.steps, "batch_size": batch_size or 1 << 14, "spp": spp,
+                "zooms": tuple(zooms) or ZOOMS, "max_triangles": max_triangles, "seed": seed,
+                "device": check_device(device), "pixel_grid": pixel_grid, "super_resolution": super_resolution}
+
     if corpus:
         if any(v is not None for v in (input_path, curves_path, scene, solve_path, target_bytes, budgets)) or rd \
                 or probes or fit_curves_to_image:
             raise click.UsageError("--corpus takes none of INPUT, --curves, --scene, --solve, --probe, --bytes, --rd, "
                                    "--budgets and --fit-curves-to-image")
-        from ..bench.compare import ZOOMS, BenchSettings
+        from ..bench.compare import BenchSettings
         from ..bench.corpus import CORPUS_METHODS
 
-        settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14,
-                                 render=render or 128, spp=spp, zooms=tuple(zooms) or ZOOMS,
-                                 methods=_methods(methods, CORPUS_METHODS), max_triangles=max_triangles, seed=seed,
-                                 device=check_device(device), sweep=False, match_time=False, pixel_grid=pixel_grid,
-                                 keep_going=True, prune_curves=prune_curves, refine_curves=refine_curves,
-                                 super_resolution=super_resolution)
+        settings = BenchSettings(render=render or 128, methods=_methods(methods, CORPUS_METHODS), sweep=False,
+                                 match_time=False, keep_going=True, prune_curves=prune_curves,
+                                 refine_curves=refine_curves, **common())
         _corpus(settings, cases=corpus_cases, data=corpus_data, bpp=corpus_bpp, jobs=corpus_jobs,
                 own_rate=corpus_own_rate, default_encode=steps is None and batch_size is None, size=size or 256,
                 output=output, json_path=json_path, quiet=quiet)
@@ -221,13 +226,10 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
         raise click.UsageError("--rd sweeps --budgets; --bytes applies to a single comparison")
     if budgets and not rd:
         raise click.UsageError("--budgets applies to --rd")
-    from ..bench.compare import ZOOMS, BenchSettings, markdown_table, run_bench, scene_inputs, write_outputs
+    from ..bench.compare import BenchSettings, markdown_table, run_bench, scene_inputs, write_outputs
 
-    settings = BenchSettings(steps=steps or BenchSettings.steps, batch_size=batch_size or 1 << 14, size=size,
-                             render=render, spp=spp, zooms=tuple(zooms) or ZOOMS, methods=_methods(methods, None),
-                             target_bytes=target_bytes, max_triangles=max_triangles, seed=seed,
-                             device=check_device(device), sweep=sweep, sweep_steps=sweep_steps, match_time=match_time,
-                             pixel_grid=pixel_grid, super_resolution=super_resolution)
+    settings = BenchSettings(size=size, render=render, methods=_methods(methods, None), target_bytes=target_bytes,
+                             sweep=sweep, sweep_steps=sweep_steps, match_time=match_time, **common())
     if rd:
         from ..bench.rd import require_matplotlib
 
