@@ -156,8 +156,35 @@ def _derived_faces(vertices: np.ndarray, edges: np.ndarray, domain) -> np.ndarra
     return _canonical(faces)
 
 
-def _topology_edges(topo: bytes) -> np.ndarray:
-    """TOPO's disc_edges and curve_endpoints, (E + C, 2) (D §6.2), the constraints TOPO implies (D §6.1)."""
+def _unzigzag(z: int) -> int:
+    return z // 2 if z % 2 == 0 else -(z + 1) // 2
+
+
+def _read_topc(topo: bytes):
+    """TOPC -> vertex pairs (E + C, 2), side bits (C,), degrees (C,), barycentric integers (C + C3, 2) or, with b = 0,
+    the f64 inner points (C, 2, 2), and b (D §6.2.1)."""
+    E, C, C3, b, r1, r2, r3 = struct.unpack_from("<IIIBBBB", topo)
+    tail = 32 * C if b == 0 else 0
+    stream = _Bits(topo[16:len(topo) - tail])
+    pairs, side, degree, a = [], [], [], 0
+    for i in range(E + C):
+        a += _unzigzag(stream.rice(r1))
+        pairs.append((a, a + _unzigzag(stream.rice(r2) + 1)))
+        if i >= E:
+            side.append(stream.take(1))
+            degree.append(3 if stream.take(1) else 2)
+    if b:
+        inner = np.array([_unzigzag(stream.rice(r3)) for _ in range(2 * (C + C3))], np.int64).reshape(-1, 2)
+    else:
+        inner = np.frombuffer(topo, "<f8", 4 * C, len(topo) - tail).reshape(C, 2, 2)
+    return np.array(pairs, np.int64).reshape(-1, 2), np.array(side), np.array(degree, np.int64), inner, b
+
+
+def _topology_edges(topo: bytes, kind: bytes = b"TOPO") -> np.ndarray:
+    """The topology chunk's disc_edges and curve_endpoints, (E + C, 2) (D §6.2, §6.2.1), the constraints it implies
+    (D §6.1)."""
+    if kind == b"TOPC":
+        return _read_topc(topo)[0]
     E, C = struct.unpack_from("<II", topo)
     raw = _unzstd(topo[16:])
     edges = np.frombuffer(raw, "<u4", 2 * E).reshape(E, 2)
@@ -165,7 +192,7 @@ def _topology_edges(topo: bytes) -> np.ndarray:
     return np.concatenate([edges, ends]).astype(np.int64)
 
 
-def _decode_mesh(data: bytes, domain, topo: bytes) -> tuple[np.ndarray, np.ndarray]:
+def _decode_mesh(data: bytes, domain, topo: bytes, kind: bytes = b"TOPO") -> tuple[np.ndarray, np.ndarray]:
     """MESH chunk -> vertices (V, 2) float64, faces (T, 3) int64 in canonical order (D §6.1)."""
     encoding, bits, shift, V, T = struct.unpack_from("<BBHII", data)
     payload = data[12:]
@@ -193,8 +220,8 @@ def _decode_mesh(data: bytes, domain, topo: bytes) -> tuple[np.ndarray, np.ndarr
     x0, y0, x1, y1 = domain
     vertices = np.stack([(1.0 - t[:, 0]) * x0 + t[:, 0] * x1, (1.0 - t[:, 1]) * y0 + t[:, 1] * y1], axis=1)
     if encoding == 2:
-        faces = _derived_faces(vertices, np.concatenate([_topology_edges(topo), np.array(extra, np.int64).reshape(-1, 2)]),
-                               domain)
+        faces = _derived_faces(vertices, np.concatenate([_topology_edges(topo, kind),
+                                                         np.array(extra, np.int64).reshape(-1, 2)]), domain)
     return vertices, faces
 
 
@@ -216,12 +243,29 @@ def _decode_topology(data: bytes, vertices: np.ndarray, faces: np.ndarray):
     ends = take("<u4", 2 * C).reshape(C, 2)
     take("<i4", C)
     degree = take("u1", C)
-    A, B = vertices[ends[:, 0]], vertices[ends[:, 1]]
     if cp_format == 1:
-        inner = take("<f8", 4 * C).reshape(C, 2, 2)
-    else:
+        return edges, ctri, ends, _control_points(vertices, faces, ctri, ends, degree, take("<f8", 4 * C).reshape(C, 2, 2))
+    uw = take("<i4", 2 * (C + C3)).reshape(-1, 2) / 2.0**24
+    return edges, ctri, ends, _control_points(vertices, faces, ctri, ends, degree, uw)
+
+
+def _decode_topc(data: bytes, vertices: np.ndarray, faces: np.ndarray):
+    """TOPC chunk -> the same as ``_decode_topology`` (D §6.2.1)."""
+    E = struct.unpack_from("<I", data)[0]
+    pairs, side, degree, inner, b = _read_topc(data)
+    ends = pairs[E:]
+    owner = {(int(f[k]), int(f[(k + 1) % 3])): i for i, f in enumerate(faces) for k in range(3)}
+    ctri = np.array([owner[(a, c) if s == 0 else (c, a)] for (a, c), s in zip(ends.tolist(), side)], np.int64)
+    return pairs[:E], ctri, ends, _control_points(vertices, faces, ctri, ends, degree, inner / 2.0**b if b else inner)
+
+
+def _control_points(vertices, faces, ctri, ends, degree, inner) -> np.ndarray:
+    """Control points (C, 4, 2) from the inner points (C, 2, 2), or from barycentric (u, w) rows (C + C3, 2): P1, P2
+    of a cubic, Q of a quadratic, in the frame A, B, apex X of the curve's face (D §6.2, cp_format 0)."""
+    A, B = vertices[ends[:, 0]], vertices[ends[:, 1]]
+    if inner.ndim == 2:
+        C, uw = len(ends), inner
         X = vertices[faces[ctri].sum(1) - ends.sum(1)]
-        uw = take("<i4", 2 * (C + C3)).reshape(-1, 2) / 2.0**24
         owner = np.repeat(np.arange(C), np.where(degree == 3, 2, 1))
         pts = (A[owner] + uw[:, :1] * (B - A)[owner]) + uw[:, 1:] * (X - A)[owner]
         inner = np.empty((C, 2, 2))
@@ -230,7 +274,7 @@ def _decode_topology(data: bytes, vertices: np.ndarray, faces: np.ndarray):
         inner[cubic] = np.stack([pts[start[cubic]], pts[start[cubic] + 1]], axis=1)
         two_q = 2.0 * pts[start[~cubic]]
         inner[~cubic] = np.stack([(A[~cubic] + two_q) / 3.0, (two_q + B[~cubic]) / 3.0], axis=1)
-    return edges, ctri, ends, np.concatenate([A[:, None], inner, B[:, None]], axis=1)
+    return np.concatenate([A[:, None], inner, B[:, None]], axis=1)
 
 
 def _decode_features(data: bytes) -> np.ndarray:
@@ -366,8 +410,10 @@ class ReferenceField:
     def from_bytes(cls, blob: bytes) -> ReferenceField:
         ch = read_chunks(blob)
         header = json.loads(_unzstd(ch[b"HEAD"]) if b"HEAD" in ch else _unzstd(ch[b"HEAC"], header_dictionary()))
-        vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"], ch[b"TOPO"])
-        edges, ctri, ends, cp = _decode_topology(ch[b"TOPO"], vertices, faces)
+        kind = b"TOPC" if b"TOPC" in ch else b"TOPO"
+        vertices, faces = _decode_mesh(ch[b"MESH"], header["domain"], ch[kind], kind)
+        decode = _decode_topc if kind == b"TOPC" else _decode_topology
+        edges, ctri, ends, cp = decode(ch[kind], vertices, faces)
         if b"MLPC" in ch:
             mlp = _decode_mlpc(ch[b"MLPC"], header)
         else:

@@ -26,9 +26,11 @@ GOLDEN = Path(__file__).parent / "golden" / "valid"
 ATOL = 1e-4
 CODINGS = {"1.0": {"feature_coding": "plain", "compact": False},
            "1.1": {"feature_coding": "predicted", "weight_bits": 6, "compact": False},
-           "1.4": {"feature_coding": "predicted", "weight_bits": 6}}
-"""Chunk encodings of a version: HEAD + FEAT + MLPW (1.0), HEAD + FEAC + MLPQ (1.1) or HEAC + FEAC + MLPC (1.4)."""
-CHUNKS = {"1.0": {b"HEAD", b"FEAT", b"MLPW"}, "1.1": {b"HEAD", b"FEAC", b"MLPQ"}, "1.4": {b"HEAC", b"FEAC", b"MLPC"}}
+           "1.5": {"feature_coding": "predicted", "weight_bits": 6}}
+"""Chunk encodings of a version: HEAD + TOPO + FEAT + MLPW (1.0), HEAD + TOPO + FEAC + MLPQ (1.1) or
+HEAC + TOPC + FEAC + MLPC (1.5)."""
+CHUNKS = {"1.0": {b"HEAD", b"TOPO", b"FEAT", b"MLPW"}, "1.1": {b"HEAD", b"TOPO", b"FEAC", b"MLPQ"},
+          "1.5": {b"HEAC", b"TOPC", b"FEAC", b"MLPC"}}
 
 
 def _junction() -> Curves:
@@ -54,7 +56,7 @@ def mesh(scene):
     return roundtrip_mesh(triangulate(curves(), max_triangles=max_triangles), 16)
 
 
-def _encode(mesh, *, n_slices=1, times=None, seed=0, coding="1.4", **model_kw):
+def _encode(mesh, *, n_slices=1, times=None, seed=0, coding="1.5", **model_kw):
     """The bytes of a random field on ``mesh`` written with the ``CODINGS[coding]`` chunks, decoded by dfc (a model)
     and by the reference decoder."""
     field = FeatureField(mesh, dim=5, seed=seed, n_slices=n_slices, times=times)
@@ -215,12 +217,12 @@ def test_time_slices_agree(mesh):
 def test_raw_mesh_encoding_agrees():
     mesh = triangulate(_junction(), max_triangles=150)       # off any grid: stored raw, control points as f64
     model, ref, blob = _encode(mesh, seed=4)
-    assert read_chunks(blob)[b"MESH"][0] == 1 and read_chunks(blob)[b"TOPO"][12] == 1
+    assert read_chunks(blob)[b"MESH"][0] == 1 and read_chunks(blob)[b"TOPC"][12] == 0
     assert np.array_equal(ref.vertices, mesh.vertices)
     _agree(model, ref, np.concatenate([_random(ref, 1000, 8), _curve_points(ref, (0.5,))[0]]))
 
 
-@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived", "tiny_compact"])
+@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived", "tiny_compact", "tiny_topc"])
 def test_golden_tiny_file_agrees(name):
     blob = (GOLDEN / f"{name}.dfield").read_bytes()
     model = from_contents(decode_dfield(blob))

@@ -29,7 +29,8 @@ def file_stats(path) -> dict:
         "mesh": {"vertices": m["vertices"], "triangles": m["triangles"], "discontinuous_vertices": mesh.n_disc_vertices,
                  "discontinuous_edges": m["disc_edges"], "curved_triangles": m["curves"],
                  "encoding": m["encoding"], "bits": m["bits"],
-                 "free_vertex_bits": m["bits"] - m["shift"] if m["encoding"] == "derived" else None},
+                 "free_vertex_bits": m["bits"] - m["shift"] if m["encoding"] == "derived" else None,
+                 "topology_chunk": m["topology"], "control_points": m["control_points"]},
         "parameters": {"features": feat["slices"] * feat["rows"] * feat["width"], "feature_rows": feat["rows"],
                        "feature_dim": feat["width"], "feature_bits": feat["bits"], "feature_coding": feat["coding"],
                        "mlp": info["mlp"]["parameters"], "mlp_weight_bits": info["mlp"]["weight_bits"] or None},
@@ -48,8 +49,8 @@ def file_stats(path) -> dict:
 @quiet_option
 def command(input_path, json_path, quiet):
     """Print the mesh, parameter and byte statistics of IN (- reads standard input): triangles, vertices,
-    discontinuous vertices, curved triangles, feature and MLP parameters, bytes per chunk, bits per pixel of the
-    encoded input, versions."""
+    discontinuous vertices, curved triangles, how the curves' control points are stored, feature and MLP parameters,
+    bytes per chunk, bits per pixel of the encoded input, versions."""
     with stdin_file(input_path, "stdin.dfield") as path:
         s = file_stats(path)
     if json_path:
@@ -71,6 +72,7 @@ def command(input_path, json_path, quiet):
         ("mesh encoding", f"{m['encoding']}" + (f", {m['bits']} bits" if m["encoding"] == "draco" else "")
          + (f", {m['bits']} bits on the curves, {m['free_vertex_bits']} elsewhere, triangles derived"
             if m["encoding"] == "derived" else "")),
+        ("curve control points", f"{m['control_points']} ({m['topology_chunk']})"),
         ("feature parameters", f"{p['features']} ({p['feature_rows']} rows x {p['feature_dim']}, {p['feature_bits']} bits, "
                                f"{p['feature_coding']})"),
         ("MLP parameters", f"{p['mlp']} (" + ("float16" if not p["mlp_weight_bits"] else

@@ -10,8 +10,9 @@ header and the chunks' fixed-size fields only (for ``dfc stats``). The mesh chun
 Content 1.1 adds two critical chunks, each an alternative to a 1.0 chunk in the same place: ``FEAC`` for ``FEAT``
 and ``MLPQ`` (integer weight matrices) for ``MLPW``; content 1.4 two more, for a smaller fixed part: ``HEAC`` (the
 header JSON compressed against ``HEADER_DICTIONARY``) for ``HEAD`` and ``MLPC`` (``MLPQ`` without its tensor table,
-which the header's model implies) for ``MLPQ``. An older decoder refuses them as unknown critical chunks; this one
-reads every version.
+which the header's model implies) for ``MLPQ``; content 1.5 ``TOPC`` (the discontinuities bit-packed, control points
+on a coarser barycentric grid, no piece ids) for ``TOPO``. An older decoder refuses them as unknown critical chunks;
+this one reads every version.
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ __all__ = [
 
 SIGNATURE = b"\x89DFL\r\n\x1a\n"
 CONTAINER_VERSION = (1, 1)
-CONTENT_VERSION = (1, 4)
+CONTENT_VERSION = (1, 5)
 MAX_FILE_BYTES = 2**30
 MAX_CHUNK = 2**30 - 1
 MAX_HEADER_JSON = 2**20
@@ -66,7 +67,7 @@ MAX_JSON_DEPTH = 32
 MAX_ROWS, MAX_K, MAX_S, MAX_FEATURE_ELEMENTS = 2**27, 256, 4096, 2**28
 MAX_TENSORS, MAX_RANK, MAX_MLP_ELEMENTS = 256, 4, 2**24
 MAX_CHANNELS = 64
-CRITICAL_ORDER = ((b"HEAD", b"HEAC"), (b"MESH",), (b"TOPO",), (b"FEAT", b"FEAC"), (b"MLPW", b"MLPQ", b"MLPC"),
+CRITICAL_ORDER = ((b"HEAD", b"HEAC"), (b"MESH",), (b"TOPO", b"TOPC"), (b"FEAT", b"FEAC"), (b"MLPW", b"MLPQ", b"MLPC"),
                   (b"DEND",))
 """The critical chunks in file order; each position holds exactly one of its alternatives."""
 FEATURE_CODINGS = ("plain", "predicted")
@@ -572,8 +573,9 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
     contents would make an invalid file and ``MeshError`` when the mesh is invalid. ``mesh_validated``: the mesh
     came from ``roundtrip_mesh`` (validated there), so it is not validated again (``encode_roundtripped``).
     ``mesh_coding``: "derived" stores the mesh with the derived encoding when that is smaller and exact (content
-    1.3), "draco" never (``dfc.io.meshcodec.encode_roundtripped``). ``compact``: the header as ``HEAC`` and integer
-    weights as ``MLPC`` (content 1.4); False writes ``HEAD`` and ``MLPQ``, as content 1.3 did.
+    1.3), "draco" never (``dfc.io.meshcodec.encode_roundtripped``). ``compact``: the header as ``HEAC``, integer
+    weights as ``MLPC`` (content 1.4) and the topology as ``TOPC`` (content 1.5); False writes ``HEAD``, ``MLPQ`` and
+    ``TOPO``, as content 1.3 did.
     """
     F = np.asarray(contents.features)
     if F.ndim != 3 or not np.issubdtype(F.dtype, np.floating) or not np.all(np.isfinite(F)):
@@ -594,7 +596,7 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
     except (TypeError, ValueError) as exc:
         raise FormatError(f"cannot write: header is not JSON-serialisable ({exc})") from None
     mesh_data, topo_data = encode_roundtripped(contents.mesh, level=compression_level, validated=mesh_validated,
-                                               coding=mesh_coding)
+                                               coding=mesh_coding, compact=compact)
     if feature_coding == "predicted":
         from .featcodec import encode_feac
 
@@ -609,7 +611,7 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
         mlp = (b"MLPQ", _encode_mlpq(contents.mlp, weight_bits, compression_level))
     head = ((b"HEAC", compress(text, compression_level, HEADER_DICTIONARY)) if compact
             else (b"HEAD", compress(text, compression_level)))
-    parts = [head, (b"MESH", mesh_data), (b"TOPO", topo_data), features, mlp, (b"DEND", b"")]
+    parts = [head, (b"MESH", mesh_data), (b"TOPC" if compact else b"TOPO", topo_data), features, mlp, (b"DEND", b"")]
     body = b"".join(_chunk(t, d) for t, d in parts)
     sizes = {t.decode(): 12 + len(d) + (-len(d) % 4) for t, d in parts}
     if _FILE_HEAD.size + len(body) > MAX_FILE_BYTES:
@@ -634,7 +636,9 @@ def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
     info = _feat_info(feat, feat_type.decode())
     header = _parse_header(*_one(chunks, CRITICAL_ORDER[0]))
     _check_header(header, info["slices"])
-    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"], full_validate=validate_mesh)
+    topo_type, topo = _one(chunks, CRITICAL_ORDER[2])
+    mesh = decode_mesh(bytes(chunks[b"MESH"]), bytes(topo), header["domain"], full_validate=validate_mesh,
+                       topology=topo_type.decode())
     layout = _layout(mesh)
     if layout.n_features != info["rows"]:
         raise FormatError(f"{feat_type.decode()}: {info['rows']} feature rows, the mesh's layout has "
@@ -691,17 +695,18 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
         table, weight_bits = _mlpc_table(header, feat["width"]), [_mlpc_head(mlp_data)]
     else:
         table, weight_bits = _mlp_table(mlp_data), []
+    topo_type, topo = _one(chunks, CRITICAL_ORDER[2])
     extra = {}
     if with_mesh:
-        extra["decoded_mesh"] = decode_mesh(bytes(chunks[b"MESH"]), bytes(chunks[b"TOPO"]), header["domain"],
-                                            full_validate=False)
+        extra["decoded_mesh"] = decode_mesh(bytes(chunks[b"MESH"]), bytes(topo), header["domain"],
+                                            full_validate=False, topology=topo_type.decode())
     return {
         "container_version": list(_FILE_HEAD.unpack_from(buf)[1:3]),
         "content_version": header["content_version"],
         "file_bytes": len(buf),
         "chunks": sizes,
         "header": header,
-        "mesh": mesh_info(chunks[b"MESH"], chunks[b"TOPO"]),
+        "mesh": mesh_info(chunks[b"MESH"], topo, topo_type.decode()),
         "features": feat,
         "mlp": {"tensors": {name: list(shape) for name, shape in table},
                 "parameters": sum(math.prod(s) for _, s in table), "weight_bits": weight_bits},

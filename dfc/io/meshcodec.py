@@ -1,4 +1,4 @@
-"""Mesh encoding for ``.dfield`` files: the ``MESH`` and ``TOPO`` chunk payloads (spec/dfield.md §6.1–6.2).
+"""Mesh encoding for ``.dfield`` files: the ``MESH`` and ``TOPO`` or ``TOPC`` chunk payloads (spec/dfield.md §6.1–6.2).
 
 Vertices are quantised to an integer grid over the domain rectangle (``M = 2**bits - 1`` steps per axis, so
 border vertices stay exactly on the border) and the grid mesh is compressed with Draco's edgebreaker, or (the
@@ -6,7 +6,9 @@ derived encoding, content 1.3) stored as the grid points and the constraint edge
 rebuilding the triangles as their unique constrained Delaunay triangulation. Draco
 reorders vertices and faces, so the decoder puts the mesh in a canonical order (vertices by ``(qx, qy)``, faces
 rotated to start at their smallest index, then sorted); ``roundtrip_mesh`` returns that decoder view and the
-encoder fits on it. The raw encoding stores float64 vertices losslessly and keeps the order.
+encoder fits on it. The raw encoding stores float64 vertices losslessly and keeps the order. The discontinuities go to
+``TOPO`` (zstd of fixed-width fields) or, since content 1.5, ``TOPC`` (bit-packed, control points on a barycentric
+grid just fine enough for the vertex grid, no piece ids).
 
 Every function that reads bytes raises ``FormatError`` (and nothing else) on any inconsistency.
 """
@@ -14,6 +16,7 @@ Every function that reads bytes raises ``FormatError`` (and nothing else) on any
 from __future__ import annotations
 
 import struct
+from dataclasses import replace
 from fractions import Fraction
 
 import DracoPy
@@ -36,6 +39,7 @@ __all__ = [
     "decode_mesh",
     "roundtrip_mesh",
     "encode_roundtripped",
+    "tolerance_bary_bits",
     "mesh_info",
     "check_mesh",
     "compress",
@@ -59,6 +63,10 @@ _DERIVED_ROUNDS = 32
 _INCIRCLE_FILTER = 1e-12
 """Relative error bound (× the permanent) under which the float incircle test is redone exactly."""
 _TOPO_HEAD = struct.Struct("<IIIB3x")
+_TOPC_HEAD = struct.Struct("<IIIBBBB")
+"""TOPC's fixed fields: E, C, C3, barycentric bits b (0: f64 control points), Rice parameters of the first
+vertices, the second vertices and the control-point integers (spec §6.2.1)."""
+_MAX_BARY_BITS = 24
 _CP_I32, _CP_F64 = 0, 1
 _MAX_WINDOW = 2**27
 _BARY_ONE = 2.0**24
@@ -177,11 +185,47 @@ def _quantise(vertices: np.ndarray, domain, bits: int) -> np.ndarray:
     return np.clip(np.rint(_normalise(vertices, domain) * M), 0, M).astype(np.int64)
 
 
+def _barycentric(mesh: Mesh) -> np.ndarray | None:
+    """Barycentric (u, w) (C + C3, 2) float64 of the stored inner control points (P1, P2 of a cubic, Q of a
+    quadratic, curve by curve) in their curve's frame (spec §6.2), or None when one is not below ``_BARY_LIMIT`` in
+    magnitude (a degenerate frame included)."""
+    C = len(mesh.curved_triangles)
+    deg = np.asarray(mesh.curve_degree, np.int64)
+    cp = np.asarray(mesh.curve_control_points, np.float64).reshape(C, 4, 2)
+    # quadratic: Q from the elevated control points (mean of both estimates)
+    q = 0.25 * ((3.0 * cp[:, 1] - cp[:, 0]) + (3.0 * cp[:, 2] - cp[:, 3]))
+    inner = np.where((deg == 3)[:, None, None], cp[:, 1:3], q[:, None, :])
+    keep = np.ones((C, 2), bool)
+    keep[:, 1] = deg == 3
+    A, B, X = _curve_frame(mesh.vertices, mesh.triangles, mesh.curved_triangles, mesh.curve_endpoints)
+    rows = np.repeat(np.arange(C), 2).reshape(C, 2)[keep]
+    d, e, p = (B - A)[rows], (X - A)[rows], inner[keep] - A[rows]
+    with np.errstate(divide="ignore", invalid="ignore"):  # degenerate triangles fail validation later
+        det = cross(d, e)
+        uw = np.stack([cross(p, e) / det, cross(d, p) / det], axis=-1)
+    return uw if np.all(np.abs(uw) < _BARY_LIMIT) else None  # the comparison also catches NaN
+
+
+def _from_barycentric(uw: np.ndarray, deg: np.ndarray, A: np.ndarray, B: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Inner control points P1, P2 (C, 2, 2) float64 from barycentric rows ``uw`` (C + C3, 2) in the frames A, B, X
+    (C, 2) of curves of degree ``deg`` (C,), evaluated exactly as spec §6.2 orders the operations."""
+    C = len(deg)
+    cubic = deg == 3
+    rows = np.repeat(np.arange(C), np.where(cubic, 2, 1))
+    with np.errstate(over="ignore", invalid="ignore"):
+        pts = A[rows] + uw[:, :1] * (B - A)[rows] + uw[:, 1:] * (X - A)[rows]
+        first = np.cumsum(np.where(cubic, 2, 1)) - np.where(cubic, 2, 1)
+        inner = np.empty((C, 2, 2))
+        inner[cubic, 0], inner[cubic, 1] = pts[first[cubic]], pts[first[cubic] + 1]
+        two_q = 2.0 * pts[first[~cubic]]
+        inner[~cubic, 0], inner[~cubic, 1] = (A[~cubic] + two_q) / 3.0, (two_q + B[~cubic]) / 3.0
+    return inner
+
+
 def _encode_topology(mesh: Mesh, vmap: np.ndarray, tmap: np.ndarray, cp_format: int, level: int) -> bytes | None:
     """TOPO chunk data, or None when a control point is not representable in ``cp_format``."""
     E, C = len(mesh.disc_edges), len(mesh.curved_triangles)
     deg = np.asarray(mesh.curve_degree, np.uint8)
-    cp = np.asarray(mesh.curve_control_points, np.float64)
     parts = [
         vmap[np.asarray(mesh.disc_edges, np.int64)].astype("<u4"),
         np.asarray(mesh.disc_edge_piece).astype("<i4"),
@@ -191,26 +235,128 @@ def _encode_topology(mesh: Mesh, vmap: np.ndarray, tmap: np.ndarray, cp_format: 
         deg,
     ]
     if cp_format == _CP_F64:
-        parts.append(cp[:, 1:3].astype("<f8"))
+        parts.append(np.asarray(mesh.curve_control_points, np.float64)[:, 1:3].astype("<f8"))
     else:
-        # cubic: P1, P2; quadratic: Q from the elevated control points (mean of both estimates); each as
-        # barycentric (u, w) in its triangle, so the curve moves with the triangle when vertices are quantised
-        q = 0.25 * ((3.0 * cp[:, 1] - cp[:, 0]) + (3.0 * cp[:, 2] - cp[:, 3]))
-        inner = np.where((deg == 3)[:, None, None], cp[:, 1:3], q[:, None, :])
-        keep = np.ones((C, 2), bool)
-        keep[:, 1] = deg == 3
-        A, B, X = _curve_frame(mesh.vertices, mesh.triangles, mesh.curved_triangles, mesh.curve_endpoints)
-        rows = np.repeat(np.arange(C), 2).reshape(C, 2)[keep]
-        d, e, p = (B - A)[rows], (X - A)[rows], inner[keep] - A[rows]
-        with np.errstate(divide="ignore", invalid="ignore"):  # degenerate triangles fail validation later
-            det = cross(d, e)
-            uw = np.stack([cross(p, e) / det, cross(d, p) / det], axis=-1)
-        if not np.all(np.abs(uw) < _BARY_LIMIT):  # also catches NaN from degenerate triangles
+        # barycentric, so the curve moves with its triangle when vertices are quantised
+        uw = _barycentric(mesh)
+        if uw is None:
             return None
         parts.append(np.rint(uw * _BARY_ONE).astype("<i4"))
     payload = b"".join(np.ascontiguousarray(p).tobytes() for p in parts)
     head = _TOPO_HEAD.pack(E, C, int(np.count_nonzero(deg == 3)), cp_format)
     return head + compress(payload, level)
+
+
+# ----------------------------------------------------------------------------------------------- TOPC
+def _zigzag(d: np.ndarray) -> np.ndarray:
+    """Signed integers -> non-negative: 0, -1, 1, -2, ... -> 0, 1, 2, 3, ..."""
+    d = np.asarray(d, np.int64)
+    return np.where(d >= 0, 2 * d, -2 * d - 1)
+
+
+def _unzigzag(z: int) -> int:
+    return -(z >> 1) - 1 if z & 1 else z >> 1
+
+
+def _exact_bary_bits(mesh: Mesh, uw: np.ndarray) -> int:
+    """The coarsest barycentric grid 2**-b, b in 1..24, on which ``mesh``'s inner control points decode to themselves
+    bit for bit (spec §6.2.1), else 24."""
+    deg = np.asarray(mesh.curve_degree, np.int64)
+    target = np.asarray(mesh.curve_control_points, np.float64)[:, 1:3]
+    A, B, X = _curve_frame(mesh.vertices, mesh.triangles, mesh.curved_triangles, mesh.curve_endpoints)
+    for b in range(1, _MAX_BARY_BITS + 1):
+        if np.array_equal(_from_barycentric(np.rint(uw * 2.0**b) / 2.0**b, deg, A, B, X), target):
+            return b
+    return _MAX_BARY_BITS
+
+
+def tolerance_bary_bits(mesh: Mesh, bits: int) -> int:
+    """The coarsest barycentric grid 2**-b, b in 1..24, whose rounding moves no inner control point of ``mesh`` by
+    more than half a step of the ``bits`` vertex grid (the precision the curves' vertices are stored with)."""
+    if not len(mesh.curved_triangles):
+        return 1
+    A, B, X = _curve_frame(mesh.vertices, mesh.triangles, mesh.curved_triangles, mesh.curve_endpoints)
+    # rounding u and w by at most 2**-(b+1) each moves a point by at most 2**-(b+1) * (|B - A| + |X - A|)
+    span = float(np.max(np.hypot(*(B - A).T) + np.hypot(*(X - A).T)))
+    x0, y0, x1, y1 = mesh.domain
+    step = max(x1 - x0, y1 - y0) / (2**bits - 1)
+    return int(np.clip(np.ceil(np.log2(max(span / step, 1.0))), 1, _MAX_BARY_BITS))
+
+
+def _encode_topc(mesh: Mesh, vmap: np.ndarray, bary_bits: int | None) -> bytes | None:
+    """TOPC chunk data (spec §6.2.1) with the inner control points on the 2**-``bary_bits`` barycentric grid (0: as
+    f64; None: the coarsest grid that holds them exactly, else 2**-24), or None when one is too far from its
+    triangle for the barycentric grid."""
+    E, C = len(mesh.disc_edges), len(mesh.curved_triangles)
+    deg = np.asarray(mesh.curve_degree, np.int64)
+    ends = np.asarray(mesh.curve_endpoints, np.int64).reshape(C, 2)
+    tri = np.asarray(mesh.triangles, np.int64)[np.asarray(mesh.curved_triangles, np.int64)].reshape(C, 3)
+    # side 0: the curve's triangle holds the directed edge A -> B (counter-clockwise, so its apex is left of A -> B)
+    side = ~np.any((tri == ends[:, :1]) & (np.roll(tri, -1, axis=1) == ends[:, 1:]), axis=1)
+    pairs = vmap[np.concatenate([np.asarray(mesh.disc_edges, np.int64).reshape(E, 2), ends])]
+    first = _zigzag(np.diff(pairs[:, 0], prepend=0))
+    second = _zigzag(pairs[:, 1] - pairs[:, 0]) - 1
+    tail, codes = b"", np.zeros(0, np.int64)
+    if bary_bits == 0:
+        tail = np.asarray(mesh.curve_control_points, "<f8")[:, 1:3].tobytes()
+    else:
+        uw = _barycentric(mesh)
+        if uw is None:
+            return None
+        bary_bits = _exact_bary_bits(mesh, uw) if bary_bits is None else bary_bits
+        codes = _zigzag(np.rint(uw * 2.0**bary_bits).astype(np.int64).reshape(-1))
+    r_first, _ = _rice_cost(first)
+    r_second, _ = _rice_cost(second)
+    r_cp, _ = _rice_cost(codes)
+    w = _BitWriter()
+    for i, (a, b) in enumerate(zip(first.tolist(), second.tolist())):
+        w.rice(a, r_first)
+        w.rice(b, r_second)
+        if i >= E:
+            w.fixed(int(side[i - E]), 1)
+            w.fixed(int(deg[i - E] == 3), 1)
+    for z in codes.tolist():
+        w.rice(z, r_cp)
+    head = _TOPC_HEAD.pack(E, C, int(np.count_nonzero(deg == 3)), bary_bits, r_first, r_second, r_cp)
+    return head + w.to_bytes() + tail
+
+
+def _read_topc(topo_data: bytes, info: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """TOPC chunk data -> vertex pairs (E + C, 2) int64 (the discontinuous edges, then each curve's A, B), side (C,)
+    bool, degree (C,) int64 and the inner control points' codes: barycentric integers (C + C3, 2) int64, or the f64
+    pairs (C, 2, 2) when the control points are stored as f64 (spec §6.2.1)."""
+    E, C, C3, V, b = info["disc_edges"], info["curves"], info["cubic_curves"], info["vertices"], info["bary_bits"]
+    r_first, r_second, r_cp = info["rice"]
+    payload = topo_data[_TOPC_HEAD.size:]
+    n_tail = 32 * C if b == 0 else 0
+    n_codes = 0 if b == 0 else 2 * (C + C3)
+    # every pair takes at least 2 bits, every curve 2 more, every code 1: bounds the work before any is read
+    if len(payload) < n_tail or 8 * (len(payload) - n_tail) < 2 * (E + C) + 2 * C + n_codes:
+        raise FormatError("TOPC: stream truncated")
+    reader = _BitReader(payload[:len(payload) - n_tail], "TOPC: stream")
+    pairs = np.empty((E + C, 2), np.int64)
+    flags = np.empty((C, 2), np.int64)
+    a = 0
+    for i in range(E + C):
+        a += _unzigzag(reader.rice(r_first))
+        s = _unzigzag(reader.rice(r_second) + 1)
+        if not (0 <= a < V and 0 <= a + s < V):
+            raise FormatError("TOPC: a vertex index is out of range")
+        pairs[i] = a, a + s
+        if i >= E:
+            flags[i - E] = reader.fixed(1), reader.fixed(1)
+    codes = [_unzigzag(reader.rice(r_cp)) for _ in range(n_codes)]
+    reader.finish()
+    if np.count_nonzero(flags[:, 1]) != C3:
+        raise FormatError("TOPC: the curves' degree bits do not match the cubic count")
+    if b:
+        limit = int(_BARY_LIMIT) << b
+        if codes and max(abs(k) for k in codes) >= limit:
+            raise FormatError(f"TOPC: a barycentric coordinate is not below {int(_BARY_LIMIT)} in magnitude")
+        inner = np.array(codes, np.int64).reshape(C + C3, 2)
+    else:
+        inner = np.frombuffer(payload, "<f8", 4 * C, len(payload) - n_tail).reshape(C, 2, 2).astype(np.float64)
+    return pairs, flags[:, 0].astype(bool), np.where(flags[:, 1] == 1, 3, 2), inner
 
 
 def _curve_frame(vertices, triangles, curved_triangles, endpoints):
@@ -222,8 +368,9 @@ def _curve_frame(vertices, triangles, curved_triangles, endpoints):
     return v[ends[:, 0]], v[ends[:, 1]], v[apex]
 
 
-def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool = False) -> tuple[bytes, bytes] | None:
-    """Encode ``mesh`` as (MESH, TOPO) chunk data with one fixed encoding, no fallback.
+def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool = False, compact: bool = False,
+                bary_bits: int | None = None) -> tuple[bytes, bytes] | None:
+    """Encode ``mesh`` as (MESH, TOPO) chunk data with one fixed encoding, no fallback; (MESH, TOPC) with ``compact``.
 
     Parameters
     ----------
@@ -231,6 +378,9 @@ def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool 
     bits : int in 1..23 for Draco-quantised vertices, or None for the lossless raw encoding
     level : zstd level of the TOPO (and raw MESH) payloads
     derived : the derived encoding (vertices on the ``bits`` grid, 2..23, triangles rebuilt by the decoder)
+    compact : the topology as TOPC (spec §6.2.1, content 1.5): packed, no piece ids
+    bary_bits : TOPC's barycentric grid 2**-b for the control points, 1..24, or None for the coarsest that holds
+        them exactly (else 24); the raw encoding (``bits`` None) stores them as f64
 
     Returns
     -------
@@ -245,7 +395,7 @@ def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool 
         q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
         vmap = _inverse(_vertex_order(q))
         _, tmap = _canonical_faces(vmap[np.asarray(mesh.triangles, np.int64)])
-        topo_data = _encode_topology(mesh, vmap, tmap, _CP_I32, level)
+        topo_data = _topology(mesh, vmap, tmap, level, compact, bary_bits)
         return None if topo_data is None else (mesh_data, topo_data)
     V, T = mesh.n_vertices, mesh.n_triangles
     tri = np.asarray(mesh.triangles, np.int64)
@@ -253,7 +403,8 @@ def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool 
         raw = np.asarray(mesh.vertices, "<f8").tobytes() + tri.astype("<u4").tobytes()
         mesh_data = _MESH_HEAD.pack(RAW, 0, 0, V, T) + compress(raw, level)
         ident_v, ident_t = np.arange(V), np.arange(T)
-        return mesh_data, _encode_topology(mesh, ident_v, ident_t, _CP_F64, level)
+        return mesh_data, (_encode_topc(mesh, ident_v, 0) if compact
+                           else _encode_topology(mesh, ident_v, ident_t, _CP_F64, level))
     if not 1 <= bits <= MAX_MESH_BITS:
         raise ValueError(f"mesh bits must be in 1..{MAX_MESH_BITS}, got {bits}")
     q = _quantise(np.asarray(mesh.vertices, np.float64), mesh.domain, bits)
@@ -269,8 +420,14 @@ def encode_mesh(mesh: Mesh, bits: int | None, *, level: int = 19, derived: bool 
         points, faces.astype(np.uint32), quantization_bits=bits, quantization_range=float(M),
         quantization_origin=[0.0, 0.0, 0.0], compression_level=DRACO_LEVEL, preserve_order=False,
     )
-    topo_data = _encode_topology(mesh, vmap, tmap, _CP_I32, level)
+    topo_data = _topology(mesh, vmap, tmap, level, compact, bary_bits)
     return None if topo_data is None else (_MESH_HEAD.pack(DRACO, bits, 0, V, T) + blob, topo_data)
+
+
+def _topology(mesh: Mesh, vmap: np.ndarray, tmap: np.ndarray, level: int, compact: bool,
+              bary_bits: int | None) -> bytes | None:
+    """The topology chunk's data of a quantised mesh: TOPC (``compact``) or TOPO with i32 barycentric points."""
+    return _encode_topc(mesh, vmap, bary_bits) if compact else _encode_topology(mesh, vmap, tmap, _CP_I32, level)
 
 
 # ----------------------------------------------------------------------------------------------- derived encoding
@@ -303,18 +460,19 @@ class _BitWriter:
 
 
 class _BitReader:
-    """Reads what ``_BitWriter`` wrote; ``FormatError`` past the end."""
+    """Reads what ``_BitWriter`` wrote; ``FormatError`` naming ``stream`` past the end."""
 
-    def __init__(self, data: bytes):
+    def __init__(self, data: bytes, stream: str = "MESH: derived vertex stream"):
         self.bits = "".join(format(b, "08b") for b in data)
         self.pos = 0
+        self.stream = stream
 
     def fixed(self, width: int) -> int:
         if not width:
             return 0
         end = self.pos + width
         if end > len(self.bits):
-            raise FormatError("MESH: derived vertex stream truncated")
+            raise FormatError(f"{self.stream} truncated")
         value = int(self.bits[self.pos:end], 2)
         self.pos = end
         return value
@@ -322,7 +480,7 @@ class _BitReader:
     def rice(self, r: int) -> int:
         stop = self.bits.find("0", self.pos)
         if stop < 0:
-            raise FormatError("MESH: derived vertex stream truncated")
+            raise FormatError(f"{self.stream} truncated")
         high = stop - self.pos
         self.pos = stop + 1
         return (high << r) | self.fixed(r)
@@ -336,7 +494,7 @@ class _BitReader:
     def finish(self) -> None:
         rest = self.bits[self.pos:]
         if len(rest) >= 8 or "1" in rest:
-            raise FormatError("MESH: bytes or non-zero padding after the derived vertex stream")
+            raise FormatError(f"{self.stream}: bytes or non-zero padding after it")
 
 
 def _lattice(q: np.ndarray, bits: int, shift: int) -> np.ndarray:
@@ -513,7 +671,10 @@ def _encode_derived(mesh: Mesh, bits: int) -> bytes | None:
 
 
 def _topology_edges(topo_data: bytes, info: dict) -> np.ndarray:
-    """The constraint edges TOPO implies, (E + C, 2) int64: its discontinuous edges and curve chords (spec §6.1)."""
+    """The constraint edges the topology chunk implies, (E + C, 2) int64: its discontinuous edges and curve chords
+    (spec §6.1)."""
+    if info["topology"] == "TOPC":
+        return _read_topc(topo_data, info)[0]
     E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
     n = 12 * E + 17 * C + (32 * C if info["control_points"] == "f64" else 8 * (C + C3))
     raw = decompress(topo_data[_TOPO_HEAD.size:], n, "TOPO")
@@ -560,24 +721,36 @@ def _decode_derived(payload: bytes, info: dict, topo_data: bytes, domain) -> tup
 
 
 # ----------------------------------------------------------------------------------------------- decoding
-def mesh_info(mesh_data: bytes, topo_data: bytes) -> dict:
-    """Counts and encodings from the fixed-size prefixes of MESH and TOPO chunk data (nothing decoded)."""
+def mesh_info(mesh_data: bytes, topo_data: bytes, topology: str = "TOPO") -> dict:
+    """Counts and encodings from the fixed-size prefixes of MESH and the ``topology`` chunk's data ("TOPO" or "TOPC";
+    nothing decoded)."""
     if len(mesh_data) < _MESH_HEAD.size or len(topo_data) < _TOPO_HEAD.size:
-        raise FormatError("MESH/TOPO: chunk shorter than its fixed fields")
+        raise FormatError(f"MESH/{topology}: chunk shorter than its fixed fields")
     enc, bits, shift, V, T = _MESH_HEAD.unpack_from(mesh_data)
-    E, C, C3, cp_format = _TOPO_HEAD.unpack_from(topo_data)
-    if shift and enc != DERIVED or topo_data[13:16] != b"\0\0\0":
-        raise FormatError("MESH/TOPO: reserved field is not zero")
+    if topology == "TOPC":
+        E, C, C3, bary_bits, *rice = _TOPC_HEAD.unpack_from(topo_data)
+        if bary_bits > _MAX_BARY_BITS or max(rice) > _MAX_RICE:
+            raise FormatError(f"TOPC: invalid barycentric bits {bary_bits} or Rice parameters {rice}")
+        extra = {"control_points": f"barycentric, {bary_bits} bits" if bary_bits else "f64",
+                 "bary_bits": bary_bits, "rice": tuple(rice)}
+    else:
+        E, C, C3, cp_format = _TOPO_HEAD.unpack_from(topo_data)
+        if topo_data[13:16] != b"\0\0\0":
+            raise FormatError("MESH/TOPO: reserved field is not zero")
+        if cp_format not in (_CP_I32, _CP_F64):
+            raise FormatError(f"TOPO: invalid control-point format {cp_format}")
+        extra = {"control_points": "i32-barycentric" if cp_format == _CP_I32 else "f64"}
+    if shift and enc != DERIVED:
+        raise FormatError("MESH: reserved field is not zero")
     if (enc == DRACO and not 1 <= bits <= MAX_MESH_BITS or enc == RAW and bits != 0
             or enc == DERIVED and not 1 <= shift < bits <= MAX_MESH_BITS or enc not in (DRACO, RAW, DERIVED)):
         raise FormatError(f"MESH: invalid encoding {enc} with {bits} bits" + (f", lattice shift {shift}" if shift else ""))
     if not (3 <= V <= MAX_VERTICES and 1 <= T <= MAX_TRIANGLES):
         raise FormatError(f"MESH: {V} vertices / {T} triangles outside the limits")
-    if E > MAX_DISC_EDGES or C > T or C3 > C or cp_format not in (_CP_I32, _CP_F64):
-        raise FormatError(f"TOPO: invalid counts E={E} C={C} C3={C3} or control-point format {cp_format}")
+    if E > MAX_DISC_EDGES or C > T or C3 > C:
+        raise FormatError(f"{topology}: invalid counts E={E} C={C} C3={C3}")
     return {"encoding": ("draco", "raw", "derived")[enc], "bits": bits, "shift": shift, "vertices": V, "triangles": T,
-            "disc_edges": E, "curves": C, "cubic_curves": C3,
-            "control_points": "i32-barycentric" if cp_format == _CP_I32 else "f64"}
+            "topology": topology, "disc_edges": E, "curves": C, "cubic_curves": C3, **extra}
 
 
 def _decode_draco(blob: bytes, V: int, T: int, bits: int) -> tuple[np.ndarray, np.ndarray]:
@@ -642,64 +815,74 @@ def check_mesh(vertices: np.ndarray, triangles: np.ndarray, domain) -> None:
         raise FormatError("MESH: a vertex is used by no triangle")
 
 
-def _decode_topology(topo: bytes, info: dict, vertices: np.ndarray, triangles: np.ndarray, domain):
+def _decode_topology(topo: bytes, info: dict, vertices: np.ndarray, triangles: np.ndarray):
+    """TOPO or TOPC chunk data -> disc edges (E, 2), their pieces (E,), curved triangles (C,), endpoints (C, 2),
+    control points (C, 4, 2), degrees (C,), curve pieces (C,); TOPC stores no pieces (all -1)."""
     E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
-    f64 = info["control_points"] == "f64"
-    n = 12 * E + 17 * C + (32 * C if f64 else 8 * (C + C3))
-    raw = decompress(topo[_TOPO_HEAD.size:], n, "TOPO")
-    offs = np.cumsum([0, 8 * E, 4 * E, 4 * C, 8 * C, 4 * C, C])
-    edges = np.frombuffer(raw, "<u4", 2 * E, offs[0]).reshape(E, 2).astype(np.int64)
-    edge_piece = np.frombuffer(raw, "<i4", E, offs[1]).astype(np.int64)
-    ctri = np.frombuffer(raw, "<u4", C, offs[2]).astype(np.int64)
-    ends = np.frombuffer(raw, "<u4", 2 * C, offs[3]).reshape(C, 2).astype(np.int64)
-    curve_piece = np.frombuffer(raw, "<i4", C, offs[4]).astype(np.int64)
-    deg = np.frombuffer(raw, np.uint8, C, offs[5]).astype(np.int8)
     V, T = len(vertices), len(triangles)
+    chunk = info["topology"]
+    if chunk == "TOPC":
+        pairs, side, deg, inner = _read_topc(topo, info)
+        edges, ends = pairs[:E], pairs[E:]
+        edge_piece, curve_piece = np.full(E, -1, np.int64), np.full(C, -1, np.int64)
+        # the triangle holding the directed chord A -> B (side 0) or B -> A (side 1)
+        directed = triangles.reshape(-1) * V + np.roll(triangles, -1, axis=1).reshape(-1)
+        want = np.where(side, ends[:, 1] * V + ends[:, 0], ends[:, 0] * V + ends[:, 1])
+        order = np.argsort(directed)
+        pos = np.minimum(np.searchsorted(directed[order], want), len(order) - 1)
+        if C and not np.all(directed[order][pos] == want):
+            raise FormatError("TOPC: a curve's chord is not an edge of a triangle on its side")
+        ctri = order[pos] // 3
+    else:
+        f64 = info["control_points"] == "f64"
+        n = 12 * E + 17 * C + (32 * C if f64 else 8 * (C + C3))
+        raw = decompress(topo[_TOPO_HEAD.size:], n, "TOPO")
+        offs = np.cumsum([0, 8 * E, 4 * E, 4 * C, 8 * C, 4 * C, C])
+        edges = np.frombuffer(raw, "<u4", 2 * E, offs[0]).reshape(E, 2).astype(np.int64)
+        edge_piece = np.frombuffer(raw, "<i4", E, offs[1]).astype(np.int64)
+        ctri = np.frombuffer(raw, "<u4", C, offs[2]).astype(np.int64)
+        ends = np.frombuffer(raw, "<u4", 2 * C, offs[3]).reshape(C, 2).astype(np.int64)
+        curve_piece = np.frombuffer(raw, "<i4", C, offs[4]).astype(np.int64)
+        deg = np.frombuffer(raw, np.uint8, C, offs[5]).astype(np.int64)
+        inner = (np.frombuffer(raw, "<f8", 4 * C, offs[6]).reshape(C, 2, 2).astype(np.float64) if f64
+                 else np.frombuffer(raw, "<i4", 2 * (C + C3), offs[6]).reshape(-1, 2).astype(np.int64))
     if E and (edges.max() >= V or np.any(edges[:, 0] == edges[:, 1])):
-        raise FormatError("TOPO: discontinuous edge with an invalid or repeated vertex")
+        raise FormatError(f"{chunk}: discontinuous edge with an invalid or repeated vertex")
     if E:
         und = np.sort(np.stack([triangles, np.roll(triangles, -1, axis=1)], -1).reshape(-1, 2), axis=1)
         es = np.sort(edges, axis=1)
         if not np.all(np.isin(es[:, 0] * V + es[:, 1], und[:, 0] * V + und[:, 1])):
-            raise FormatError("TOPO: a discontinuous edge is not a mesh edge")
+            raise FormatError(f"{chunk}: a discontinuous edge is not a mesh edge")
         if len(np.unique(es[:, 0] * V + es[:, 1])) != E:
-            raise FormatError("TOPO: a discontinuous edge is listed twice")
+            raise FormatError(f"{chunk}: a discontinuous edge is listed twice")
     if np.any(edge_piece < -1) or np.any(curve_piece < -1):
-        raise FormatError("TOPO: piece id below -1")
+        raise FormatError(f"{chunk}: piece id below -1")
     if C and (ctri.max() >= T or len(np.unique(ctri)) != C):
-        raise FormatError("TOPO: curved triangle index out of range or repeated")
+        raise FormatError(f"{chunk}: curved triangle index out of range or repeated")
     if C and (ends.max() >= V or np.any(ends[:, 0] == ends[:, 1])
               or not np.all(np.any(triangles[ctri][:, :, None] == ends[:, None, :], axis=1))):
-        raise FormatError("TOPO: curve endpoints are not two distinct corners of their triangle")
+        raise FormatError(f"{chunk}: curve endpoints are not two distinct corners of their triangle")
     if np.any((deg != 2) & (deg != 3)) or np.count_nonzero(deg == 3) != C3:
-        raise FormatError("TOPO: curve degree not in {2, 3} or cubic count mismatch")
+        raise FormatError(f"{chunk}: curve degree not in {{2, 3}} or cubic count mismatch")
     A, B = vertices[ends[:, 0]], vertices[ends[:, 1]]
-    if f64:
-        inner = np.frombuffer(raw, "<f8", 4 * C, offs[6]).reshape(C, 2, 2).astype(np.float64)
-    else:
-        uw = np.frombuffer(raw, "<i4", 2 * (C + C3), offs[6]).reshape(-1, 2) / _BARY_ONE
-        cubic = deg == 3
-        rows = np.repeat(np.arange(C), np.where(cubic, 2, 1))
+    if inner.dtype == np.int64:  # barycentric integers on the 2**-b grid
+        one = _BARY_ONE if chunk == "TOPO" else 2.0 ** info["bary_bits"]
         _, _, X = _curve_frame(vertices, triangles, ctri, ends)
-        with np.errstate(over="ignore", invalid="ignore"):
-            pts = A[rows] + uw[:, :1] * (B - A)[rows] + uw[:, 1:] * (X - A)[rows]
-            first = np.cumsum(np.where(cubic, 2, 1)) - np.where(cubic, 2, 1)
-            inner = np.empty((C, 2, 2))
-            inner[cubic, 0], inner[cubic, 1] = pts[first[cubic]], pts[first[cubic] + 1]
-            two_q = 2.0 * pts[first[~cubic]]
-            inner[~cubic, 0], inner[~cubic, 1] = (A[~cubic] + two_q) / 3.0, (two_q + B[~cubic]) / 3.0
+        inner = _from_barycentric(inner / one, deg, A, B, X)
     if not np.all(np.isfinite(inner)):
-        raise FormatError("TOPO: non-finite control point")
+        raise FormatError(f"{chunk}: non-finite control point")
     cp = np.concatenate([A[:, None], inner, B[:, None]], axis=1)
-    return edges, edge_piece, ctri, ends, cp, deg, curve_piece
+    return edges, edge_piece, ctri, ends, cp, deg.astype(np.int8), curve_piece
 
 
-def decode_mesh(mesh_data: bytes, topo_data: bytes, domain, *, full_validate: bool = True) -> Mesh:
-    """Decode MESH and TOPO chunk data into the canonical ``Mesh``; raise ``FormatError`` on any violation.
+def decode_mesh(mesh_data: bytes, topo_data: bytes, domain, *, full_validate: bool = True,
+                topology: str = "TOPO") -> Mesh:
+    """Decode MESH and topology chunk data into the canonical ``Mesh``; raise ``FormatError`` on any violation.
 
-    ``domain`` is (x0, y0, x1, y1) from the header. ``full_validate`` also runs ``Mesh.validate``.
+    ``domain`` is (x0, y0, x1, y1) from the header. ``full_validate`` also runs ``Mesh.validate``. ``topology``: the
+    chunk type ``topo_data`` came from, "TOPO" or "TOPC".
     """
-    info = mesh_info(mesh_data, topo_data)
+    info = mesh_info(mesh_data, topo_data, topology)
     V, T, bits = info["vertices"], info["triangles"], info["bits"]
     payload = mesh_data[_MESH_HEAD.size:]
     if info["encoding"] in ("draco", "derived"):
@@ -712,7 +895,7 @@ def decode_mesh(mesh_data: bytes, topo_data: bytes, domain, *, full_validate: bo
         triangles = np.frombuffer(raw, "<u4", 3 * T, 16 * V).reshape(T, 3).astype(np.int64)
     check_mesh(vertices, triangles, domain)
     edges, edge_piece, ctri, ends, cp, deg, curve_piece = _decode_topology(topo_data, info, vertices,
-                                                                           triangles, domain)
+                                                                           triangles)
     mesh = Mesh(domain=tuple(float(v) for v in domain), vertices=vertices, triangles=triangles,
                 disc_edges=edges, curved_triangles=ctri, curve_endpoints=ends, curve_control_points=cp,
                 curve_degree=deg, disc_edge_piece=edge_piece, curve_piece=curve_piece)
@@ -732,41 +915,66 @@ def _ladder(bits: int) -> list[int | None]:
 
 
 def _same(a: Mesh, b: Mesh) -> bool:
-    fields = ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints",
-              "curve_control_points", "disc_edge_piece", "curve_piece")
+    """Whether two meshes are equal bit for bit, order included, except for the informative piece ids."""
+    fields = ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points")
     return tuple(a.domain) == tuple(b.domain) and all(
         np.array_equal(np.asarray(getattr(a, f)), np.asarray(getattr(b, f))) for f in fields
     ) and np.array_equal(np.asarray(a.curve_degree, np.int64), np.asarray(b.curve_degree, np.int64))
 
 
-def _try(mesh: Mesh, step: int | None, level: int, validate: bool = True,
-         derived: bool = False) -> tuple[tuple[bytes, bytes], Mesh] | None:
-    enc = encode_mesh(mesh, step, level=level, derived=derived)
+def _try(mesh: Mesh, step: int | None, level: int, validate: bool = True, derived: bool = False,
+         compact: bool = False, bary_bits: int | None = None) -> tuple[tuple[bytes, bytes], Mesh] | None:
+    enc = encode_mesh(mesh, step, level=level, derived=derived, compact=compact, bary_bits=bary_bits)
     if enc is None:
         return None
     try:
-        return enc, decode_mesh(*enc, mesh.domain, full_validate=validate)
+        return enc, decode_mesh(*enc, mesh.domain, full_validate=validate, topology="TOPC" if compact else "TOPO")
     except FormatError:
         return None
+
+
+def _try_view(mesh: Mesh, step: int | None):
+    """``_try`` as ``roundtrip_mesh`` stores: TOPC with the control points on the grid ``tolerance_bary_bits`` gives
+    for ``step`` (on 2**-24 when that fails a check, f64 with the raw encoding)."""
+    for b in [0] if step is None else sorted({tolerance_bary_bits(mesh, step), _MAX_BARY_BITS}):
+        res = _try(mesh, step, level=1, compact=True, bary_bits=b)
+        if res is not None:
+            return res
+    return None
+
+
+def _canonical_topology(mesh: Mesh) -> Mesh:
+    """``mesh`` with its discontinuous edges as sorted (low, high) vertex pairs and its curves sorted by their
+    endpoints' (low, high) pair: the order TOPC stores in the fewest bits (it keeps any order)."""
+    edges = np.sort(np.asarray(mesh.disc_edges, np.int64).reshape(-1, 2), axis=1)
+    eo = np.lexsort((edges[:, 1], edges[:, 0]))
+    ends = np.asarray(mesh.curve_endpoints, np.int64).reshape(-1, 2)
+    co = np.lexsort((ends.max(axis=1), ends.min(axis=1)))
+    return replace(mesh, disc_edges=edges[eo], disc_edge_piece=np.asarray(mesh.disc_edge_piece)[eo],
+                   curved_triangles=np.asarray(mesh.curved_triangles)[co], curve_endpoints=ends[co],
+                   curve_control_points=np.asarray(mesh.curve_control_points)[co],
+                   curve_degree=np.asarray(mesh.curve_degree)[co], curve_piece=np.asarray(mesh.curve_piece)[co])
 
 
 def roundtrip_mesh(mesh: Mesh, bits: int) -> Mesh:
     """The mesh exactly as a decoder of a file written from it sees it (Draco with ``bits`` if valid).
 
     Tries Draco with ``bits, bits + 2, ... <= 23`` and then the lossless raw encoding, returning the first
-    decoded mesh that passes every check (spec §6.1, ``Mesh.validate``). Where rounding to a grid turns a thin
+    decoded mesh that passes every check (spec §6.1, ``Mesh.validate``), its topology as TOPC stores it: control
+    points rounded to the barycentric grid that keeps them within half a vertex grid step
+    (``tolerance_bary_bits``), no piece ids (-1), edges and curves in canonical order (``_canonical_topology``). Where rounding to a grid turns a thin
     triangle over, the mesh rounded to that grid and triangulated again (``dfc.geometry.triangulate.retriangulate``)
     is tried before the next grid. Raises ``MeshError`` if even the raw encoding fails, i.e. ``mesh`` itself is
     invalid.
     """
     valid = None  # whether ``mesh`` itself is valid, checked once, when a grid first fails: an invalid one is refused
     for step in _ladder(bits):
-        res = _try(mesh, step, level=1)
+        res = _try_view(mesh, step)
         if res is None and step is not None:
             valid = _is_valid(mesh) if valid is None else valid
             res = _try_on_grid(mesh, step) if valid else None
         if res is not None:
-            return res[1]
+            return _canonical_topology(res[1])
     raise MeshError("mesh cannot be stored: it fails validation even when stored losslessly")
 
 
@@ -788,7 +996,7 @@ def _try_on_grid(mesh: Mesh, bits: int):
         moved = retriangulate(mesh, _denormalise(q / float(2**bits - 1), mesh.domain))
     except MeshError:
         return None
-    return _try(moved, bits, level=1)
+    return _try_view(moved, bits)
 
 
 def _on_grid(mesh: Mesh, bits: int) -> bool:
@@ -798,8 +1006,9 @@ def _on_grid(mesh: Mesh, bits: int) -> bool:
 
 
 def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False,
-                        coding: str = "derived") -> tuple[bytes, bytes]:
-    """(MESH, TOPO) chunk data that decode to ``mesh`` bit for bit, order included.
+                        coding: str = "derived", compact: bool = False) -> tuple[bytes, bytes]:
+    """(MESH, TOPO) chunk data that decode to ``mesh`` bit for bit, order included (the piece ids aside with
+    ``compact``, which writes (MESH, TOPC): TOPC stores none).
 
     ``mesh`` should be ``roundtrip_mesh(m, bits)``: the file then reproduces exactly the geometry and order
     the features were fitted on. ``coding`` "derived" (``MESH_CODINGS``) first tries the derived encoding on the
@@ -817,14 +1026,14 @@ def encode_roundtripped(mesh: Mesh, *, level: int = 19, validated: bool = False,
     derived = None
     coarsest = next((b for b in grids if b >= 2), None)
     if coding == "derived" and coarsest is not None:
-        res = _try(mesh, coarsest, level, validate=not validated, derived=True)
+        res = _try(mesh, coarsest, level, validate=not validated, derived=True, compact=compact)
         # The derived encoding is kept only when decoding it gives back ``mesh`` bit for bit. It cannot when the
         # mesh is off the grid, when a vertex lies on (or within the CDT's tolerance of) a constraint edge so the
         # triangulation would split it, or when no set of extra edges makes ``mesh`` the unique CDT within
         # _DERIVED_ROUNDS tries: then Draco (or raw) below, which store the connectivity itself.
         derived = res[0] if res is not None and _same(res[1], mesh) else None
     for step in grids + [None]:
-        res = _try(mesh, step, level, validate=not validated)
+        res = _try(mesh, step, level, validate=not validated, compact=compact)
         if res is not None and _same(res[1], mesh):
             if derived is not None and len(derived[0]) <= len(res[0][0]):
                 return derived

@@ -3,6 +3,7 @@ error path giving one line on stderr with a non-zero exit and no output file."""
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -75,9 +76,11 @@ def test_encode_summary_and_stats(encoded, capsys):
     assert s["channels"] == ["R", "G", "B"] and s["time_axis"] is None
     assert s["value_transform"] == "affine" and len(s["value_map"]["offset"]) == 3  # fitted in normalised units
     assert s["mesh"]["encoding"] == "derived" and s["mesh"]["free_vertex_bits"] < s["mesh"]["bits"] == 20
+    bary = re.fullmatch(r"barycentric, (\d+) bits", s["mesh"]["control_points"])
+    assert s["mesh"]["topology_chunk"] == "TOPC" and bary and 1 <= int(bary.group(1)) <= 24
     code, out, _ = run(["stats", path], capsys)
     assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out and "offset + scale" in out
-    assert "triangles derived" in out
+    assert "triangles derived" in out and f"{s['mesh']['control_points']} (TOPC)" in out
 
 
 def test_decode_matches_reported_psnr_and_is_deterministic(encoded, tmp_path, capsys):

@@ -7,8 +7,9 @@ file of content version 1.1). valid/tiny_units.dfield (content 1.2) holds them w
 offset and scale per channel (``VALUE_MAP``); valid/tiny_filter.dfield (content 1.2) adds the header keys
 pixel_size and pixel_filter; both are frozen the same way. valid/tiny_derived.dfield (content 1.3) stores the mesh
 with the derived encoding (MESH encoding 2: the triangles rebuilt by the decoder), frozen too.
-valid/tiny_compact.dfield (content 1.4) is what the encoder writes now: the header as HEAC (compressed against the
-spec's header dictionary) and the weights as MLPC (no tensor table). Each valid file has a .json with
+valid/tiny_compact.dfield (content 1.4) holds the header as HEAC (compressed against the spec's header dictionary)
+and the weights as MLPC (no tensor table), frozen too. valid/tiny_topc.dfield (content 1.5) is what the encoder writes
+now: HEAC, MLPC and the discontinuities as TOPC (bit-packed). Each valid file has a .json with
 the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
 a deliberate format change (update the spec's change log)."""
 
@@ -71,9 +72,13 @@ def main():
                                                    compact=False)[0])
     derived = (HERE / "valid" / "tiny_derived.dfield").read_bytes()
     assert split(derived)[1][1][0] == 2, "the tiny mesh is no longer stored with the derived encoding"
-    compact = encode_dfield(c, compression_level=19, weight_bits=6)[0]
+    compact = (HERE / "valid" / "tiny_compact.dfield").read_bytes()
     assert [t for t, _ in split(compact)] == [b"HEAC", b"MESH", b"TOPO", b"FEAC", b"MLPC", b"DEND"]
-    _write_valid("tiny_compact", compact)
+    topc = encode_dfield(c, compression_level=19, weight_bits=6)[0]
+    assert [t for t, _ in split(topc)] == [b"HEAC", b"MESH", b"TOPC", b"FEAC", b"MLPC", b"DEND"]
+    _write_valid("tiny_topc", topc)
+    truncated_topc = [list(x) for x in split(topc)]
+    truncated_topc[2][1] = truncated_topc[2][1][:-1]
     short_mlpc = [list(x) for x in split(compact)]
     mlpc = short_mlpc[4][1]
     body = zstandard.ZstdDecompressor().decompress(mlpc[4:]) if mlpc[1] else mlpc[4:]
@@ -115,6 +120,7 @@ def main():
         "derived_mesh_truncated": join(truncated_mesh),
         "mlpc_payload_short": join(short_mlpc),
         "heac_declares_dictionary_id": join(dict_id),
+        "topc_stream_truncated": join(truncated_topc),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)

@@ -52,9 +52,11 @@ def contents():
 
 CODINGS = {"1.0": {"feature_coding": "plain", "compact": False},
            "1.1": {"feature_coding": "predicted", "weight_bits": 6, "compact": False},
-           "1.4": {"feature_coding": "predicted", "weight_bits": 6}}
-"""Chunk encodings: HEAD + FEAT + MLPW (as a 1.0 writer), HEAD + FEAC + MLPQ (1.1) or HEAC + FEAC + MLPC (1.4)."""
-CHUNK_TYPES = {"1.0": ["HEAD", "FEAT", "MLPW"], "1.1": ["HEAD", "FEAC", "MLPQ"], "1.4": ["HEAC", "FEAC", "MLPC"]}
+           "1.5": {"feature_coding": "predicted", "weight_bits": 6}}
+"""Chunk encodings: HEAD + TOPO + FEAT + MLPW (as a 1.0 writer), HEAD + TOPO + FEAC + MLPQ (1.1) or
+HEAC + TOPC + FEAC + MLPC (1.5)."""
+CHUNK_TYPES = {"1.0": ["HEAD", "TOPO", "FEAT", "MLPW"], "1.1": ["HEAD", "TOPO", "FEAC", "MLPQ"],
+               "1.5": ["HEAC", "TOPC", "FEAC", "MLPC"]}
 
 
 @pytest.fixture(scope="module", params=sorted(CODINGS))
@@ -139,7 +141,7 @@ def test_round_trip(tmp_path, contents, coding):
     assert {k: v for k, v in out.header.items() if k not in ("format", "content_version")} == contents.header
     assert out.header["content_version"] == list(CONTENT_VERSION)
     version = next(v for v, c in CODINGS.items() if c == coding)
-    assert sorted(sizes) == sorted(["MESH", "TOPO", "DEND"] + CHUNK_TYPES[version])
+    assert sorted(sizes) == sorted(["MESH", "DEND"] + CHUNK_TYPES[version])
 
 
 @pytest.mark.parametrize("bits", [1, 4, 12, 16])
@@ -178,13 +180,19 @@ def test_info_reads_counts_without_decoding(tmp_path, contents):
 
 
 def test_compact_chunks_hold_the_same_contents_in_fewer_bytes(contents):
-    """Content 1.4: HEAC and MLPC decode to exactly what HEAD and MLPQ decode to, and are smaller."""
+    """Content 1.4 and 1.5: HEAC, MLPC and TOPC decode to exactly what HEAD, MLPQ and TOPO decode to, and are
+    smaller."""
     compact, sizes = encode_dfield(contents, weight_bits=6)
     plain, plain_sizes = encode_dfield(contents, weight_bits=6, compact=False)
     a, b = decode_dfield(compact), decode_dfield(plain)
     assert a.header == b.header and np.array_equal(a.features, b.features)
     assert a.mlp.keys() == b.mlp.keys() and all(np.array_equal(a.mlp[k], b.mlp[k]) for k in b.mlp)
+    assert len(a.mesh.curved_triangles) and len(a.mesh.disc_edges)
+    for name in ("vertices", "triangles", "disc_edges", "curved_triangles", "curve_endpoints", "curve_control_points",
+                 "curve_degree", "disc_edge_piece", "curve_piece"):
+        assert np.array_equal(getattr(a.mesh, name), getattr(b.mesh, name)), name
     assert sizes["HEAC"] < plain_sizes["HEAD"] and sizes["MLPC"] < plain_sizes["MLPQ"]
+    assert sizes["TOPC"] < plain_sizes["TOPO"]
     assert read_dfield_info_bytes(compact)["mlp"] == read_dfield_info_bytes(plain)["mlp"]
 
 

@@ -1,4 +1,4 @@
-"""MESH/TOPO chunk encoding: quantisation, canonical order, fallback ladder, hostile payloads."""
+"""MESH/TOPO/TOPC chunk encoding: quantisation, canonical order, fallback ladder, hostile payloads."""
 
 import hashlib
 import os
@@ -106,9 +106,16 @@ def test_roundtrip_keeps_topology_and_bounds_error(mesh):
     vmap = np.empty(mesh.n_vertices, np.int64)
     vmap[order_in] = np.arange(mesh.n_vertices)
     assert {tuple(sorted(e)) for e in vmap[mesh.disc_edges].tolist()} == {tuple(sorted(e)) for e in out.disc_edges.tolist()}
-    assert np.array_equal(vmap[mesh.curve_endpoints], out.curve_endpoints)
-    assert np.array_equal(out.curve_piece, mesh.curve_piece) and np.array_equal(out.disc_edge_piece, mesh.disc_edge_piece)
-    assert np.array_equal(out.curve_degree, mesh.curve_degree)
+    # curves in canonical order (TOPC), matched by their directed endpoints; no piece ids (TOPC stores none)
+    source = {tuple(e): c for c, e in enumerate(vmap[mesh.curve_endpoints].tolist())}
+    match = np.array([source[tuple(e)] for e in out.curve_endpoints.tolist()])
+    assert sorted(match.tolist()) == list(range(len(match)))
+    assert np.all(np.diff(np.sort(out.curve_endpoints, axis=1) @ [mesh.n_vertices, 1]) > 0)
+    assert np.all(out.curve_piece == -1) and np.all(out.disc_edge_piece == -1)
+    assert np.array_equal(out.curve_degree, mesh.curve_degree[match])
+    # inner control points move with their triangle's corners (at most half a step each) plus half a step of rounding
+    moved_cp = np.abs(out.curve_control_points - mesh.curve_control_points[match])
+    assert np.all(moved_cp <= 2 * step.max())
     # curves stay in their triangles, ends coincide with vertices bit for bit
     assert np.array_equal(out.curve_control_points[:, 0], out.vertices[out.curve_endpoints[:, 0]])
     assert np.array_equal(out.curve_control_points[:, 3], out.vertices[out.curve_endpoints[:, 1]])
@@ -405,3 +412,80 @@ def test_retriangulate_in_place_keeps_every_curve(mesh):
     np.testing.assert_array_equal(out.curve_control_points, mesh.curve_control_points)
     np.testing.assert_array_equal(np.sort(out.triangles[out.curved_triangles], axis=1),
                                   np.sort(mesh.triangles[mesh.curved_triangles], axis=1))  # the same holders
+
+
+# ----------------------------------------------------------------------------------------------- TOPC (content 1.5)
+def _reordered(mesh: Mesh, seed: int) -> Mesh:
+    """``mesh`` with its edges and curves shuffled and half its edges turned around."""
+    from dataclasses import replace
+
+    rng = np.random.default_rng(seed)
+    eo, co = rng.permutation(len(mesh.disc_edges)), rng.permutation(len(mesh.curved_triangles))
+    edges = np.array(mesh.disc_edges)[eo]
+    turn = rng.random(len(edges)) < 0.5
+    edges[turn] = edges[turn][:, ::-1]
+    return replace(mesh, disc_edges=edges, disc_edge_piece=np.array(mesh.disc_edge_piece)[eo],
+                   curved_triangles=np.array(mesh.curved_triangles)[co], curve_endpoints=np.array(mesh.curve_endpoints)[co],
+                   curve_control_points=np.array(mesh.curve_control_points)[co],
+                   curve_degree=np.array(mesh.curve_degree)[co], curve_piece=np.array(mesh.curve_piece)[co])
+
+
+@pytest.mark.parametrize("coding", ["derived", "draco"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_topc_keeps_any_order_bit_for_bit(mesh, coding, seed):
+    """TOPC stores edges and curves in any order and orientation; the decoded mesh is the stored one bit for bit,
+    with -1 for every piece id, and TOPO of the same mesh decodes to the same geometry."""
+    view = _reordered(roundtrip_mesh(mesh, 16), seed)
+    m, t = encode_roundtripped(view, coding=coding, compact=True)
+    assert mesh_info(m, t, "TOPC")["topology"] == "TOPC"
+    out = decode_mesh(m, t, view.domain, topology="TOPC")
+    _assert_same_mesh(out, view)
+    assert np.all(out.disc_edge_piece == -1) and np.all(out.curve_piece == -1)
+    plain = decode_mesh(*encode_roundtripped(view, coding=coding), view.domain)
+    np.testing.assert_array_equal(plain.curve_control_points, out.curve_control_points)
+    assert len(t) < len(encode_roundtripped(view, coding=coding)[1])
+
+
+@given(seed=st.integers(0, 10_000), bits=st.integers(8, 22))
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+def test_control_points_move_at_most_half_a_vertex_step(seed, bits):
+    """``roundtrip_mesh`` puts the control points on the barycentric grid ``tolerance_bary_bits`` picks: on a mesh whose
+    vertices are already on the grid, each inner control point moves by at most half a step of the vertex grid."""
+    from dfc.io.meshcodec import tolerance_bary_bits
+
+    on_grid = encode_roundtripped(roundtrip_mesh(make_mesh(n_interior=30, n_curves=8, seed=seed), 22), compact=False)
+    exact = decode_mesh(*on_grid, (0.0, 0.0, 64.0, 32.0))
+    b = tolerance_bary_bits(exact, bits)
+    m, t = encode_mesh(exact, 22, compact=True, bary_bits=b)
+    assert mesh_info(m, t, "TOPC")["bary_bits"] == b
+    out = decode_mesh(m, t, exact.domain, topology="TOPC", full_validate=False)
+    half_step = 64.0 / (2**bits - 1) / 2
+    moved = np.hypot(*(out.curve_control_points - exact.curve_control_points).reshape(-1, 2).T)
+    assert moved.max() <= half_step * (1 + 1e-9)
+
+
+def test_hostile_topc_payloads_raise_format_error(mesh):
+    """Every byte of a TOPC chunk changed at random, cut short or lengthened: a FormatError naming the chunk or a
+    mesh that passes every check, nothing else."""
+    view = roundtrip_mesh(mesh, 16)
+    m, t = encode_roundtripped(view, compact=True)
+    rng = np.random.default_rng(2)
+    outcomes = set()
+    cases = [t[:-1], t + b"\0", t[:12] + bytes([25]) + t[13:], t[:8] + struct.pack("<I", 99) + t[12:],
+             t[:4] + struct.pack("<I", 2**20) + t[8:]]
+    for _ in range(300):
+        b = bytearray(t)
+        i = int(rng.integers(0, len(b)))
+        b[i] = int(rng.integers(256))
+        cases.append(bytes(b))
+    for data in cases:
+        try:
+            decode_mesh(m, data, view.domain, topology="TOPC")
+            outcomes.add("valid")
+        except FormatError as exc:
+            assert re.match(r"(TOPC|MESH)", str(exc)), exc
+            outcomes.add("refused")
+    assert "refused" in outcomes
+    for data in cases[:5]:
+        with pytest.raises(FormatError, match="^TOPC"):
+            decode_mesh(m, data, view.domain, topology="TOPC")
