@@ -18,6 +18,7 @@ from __future__ import annotations
 import struct
 from dataclasses import replace
 from fractions import Fraction
+from typing import NamedTuple
 
 import DracoPy
 import numpy as np
@@ -560,12 +561,17 @@ def _interior_edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = faces.reshape(-1)
     v = np.roll(faces, -1, axis=1).reshape(-1)
     w = np.roll(faces, -2, axis=1).reshape(-1)
-    key = u * V + v
-    order = np.argsort(key)
-    pos = np.searchsorted(key[order], v * V + u)
-    pos = np.minimum(pos, len(key) - 1)
-    found = (key[order][pos] == v * V + u) & (u < v)
-    return np.stack([u[found], v[found], w[found], w[order[pos[found]]]], axis=1)
+    at, there = _find_keys(u * V + v, v * V + u)
+    found = there & (u < v)
+    return np.stack([u[found], v[found], w[found], w[at[found]]], axis=1)
+
+
+def _find_keys(keys: np.ndarray, want: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each of ``want`` (K,) int64 is in the distinct ``keys`` (N,) int64, N >= 1: its index (K,) int64 (any
+    index when absent) and whether it is there (K,) bool."""
+    order = np.argsort(keys)
+    pos = np.minimum(np.searchsorted(keys[order], want), len(keys) - 1)
+    return order[pos], keys[order][pos] == want
 
 
 def _incircle_sign(p: np.ndarray) -> np.ndarray:
@@ -670,21 +676,10 @@ def _encode_derived(mesh: Mesh, bits: int) -> bytes | None:
     return head + w.to_bytes()
 
 
-def _topology_edges(topo_data: bytes, info: dict) -> np.ndarray:
-    """The constraint edges the topology chunk implies, (E + C, 2) int64: its discontinuous edges and curve chords
-    (spec §6.1)."""
-    if info["topology"] == "TOPC":
-        return _read_topc(topo_data, info)[0]
-    E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
-    n = 12 * E + 17 * C + (32 * C if info["control_points"] == "f64" else 8 * (C + C3))
-    raw = decompress(topo_data[_TOPO_HEAD.size:], n, "TOPO")
-    edges = np.frombuffer(raw, "<u4", 2 * E, 0).reshape(E, 2).astype(np.int64)
-    ends = np.frombuffer(raw, "<u4", 2 * C, 12 * E + 4 * C).reshape(C, 2).astype(np.int64)
-    return np.concatenate([edges, ends])
-
-
-def _decode_derived(payload: bytes, info: dict, topo_data: bytes, domain) -> tuple[np.ndarray, np.ndarray]:
-    """Derived payload -> canonical grid points (V, 2) int64 and faces (T, 3) int64 (spec §6.1, encoding 2)."""
+def _decode_derived(payload: bytes, info: dict, implied: np.ndarray, domain) -> tuple[np.ndarray, np.ndarray]:
+    """Derived payload -> canonical grid points (V, 2) int64 and faces (T, 3) int64 (spec §6.1, encoding 2);
+    ``implied``: the constraint edges the topology chunk implies (E + C, 2) int64, its discontinuous edges and curve
+    chords."""
     V, T, bits, shift = info["vertices"], info["triangles"], info["bits"], info["shift"]
     if len(payload) < _DERIVED_HEAD.size:
         raise FormatError("MESH: derived payload shorter than its fixed fields")
@@ -705,7 +700,7 @@ def _decode_derived(payload: bytes, info: dict, topo_data: bytes, domain) -> tup
     if order is None:
         raise FormatError("MESH: two vertices coincide")
     q = q[order]
-    constraints = np.concatenate([_topology_edges(topo_data, info), extra])
+    constraints = np.concatenate([implied, extra])
     if len(constraints) and (constraints.max() >= V or np.any(constraints[:, 0] == constraints[:, 1])):
         raise FormatError("MESH/TOPO: a constraint edge has an invalid or repeated vertex")
     vertices = _denormalise(q / float(M), domain)
@@ -815,37 +810,55 @@ def check_mesh(vertices: np.ndarray, triangles: np.ndarray, domain) -> None:
         raise FormatError("MESH: a vertex is used by no triangle")
 
 
-def _decode_topology(topo: bytes, info: dict, vertices: np.ndarray, triangles: np.ndarray):
-    """TOPO or TOPC chunk data -> disc edges (E, 2), their pieces (E,), curved triangles (C,), endpoints (C, 2),
-    control points (C, 4, 2), degrees (C,), curve pieces (C,); TOPC stores no pieces (all -1)."""
+class _Topology(NamedTuple):
+    """A topology chunk's fields that need no faces (spec §6.2, §6.2.1)."""
+
+    edges: np.ndarray  # (E, 2) int64, discontinuous edges
+    edge_piece: np.ndarray  # (E,) int64, -1 from TOPC
+    ends: np.ndarray  # (C, 2) int64, each curve's A, B
+    curve_piece: np.ndarray  # (C,) int64, -1 from TOPC
+    degree: np.ndarray  # (C,) int64
+    ctri: np.ndarray | None  # (C,) int64, TOPO's curved triangles
+    side: np.ndarray | None  # (C,) bool, TOPC's side bits
+    inner: np.ndarray  # (C, 2, 2) float64 inner control points, or barycentric (u, w) rows (C + C3, 2) float64
+
+
+def _read_topology(topo: bytes, info: dict) -> _Topology:
+    """TOPO or TOPC chunk data -> its fields, read once (a derived mesh needs the edges before its faces)."""
+    E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
+    if info["topology"] == "TOPC":
+        pairs, side, deg, inner = _read_topc(topo, info)
+        b = info["bary_bits"]
+        return _Topology(pairs[:E], np.full(E, -1, np.int64), pairs[E:], np.full(C, -1, np.int64), deg, None, side,
+                         inner / 2.0**b if b else inner)
+    f64 = info["control_points"] == "f64"
+    n = 12 * E + 17 * C + (32 * C if f64 else 8 * (C + C3))
+    raw = decompress(topo[_TOPO_HEAD.size:], n, "TOPO")
+    offs = np.cumsum([0, 8 * E, 4 * E, 4 * C, 8 * C, 4 * C, C])
+    inner = (np.frombuffer(raw, "<f8", 4 * C, offs[6]).reshape(C, 2, 2).astype(np.float64) if f64
+             else np.frombuffer(raw, "<i4", 2 * (C + C3), offs[6]).reshape(-1, 2) / _BARY_ONE)
+    return _Topology(np.frombuffer(raw, "<u4", 2 * E, offs[0]).reshape(E, 2).astype(np.int64),
+                     np.frombuffer(raw, "<i4", E, offs[1]).astype(np.int64),
+                     np.frombuffer(raw, "<u4", 2 * C, offs[3]).reshape(C, 2).astype(np.int64),
+                     np.frombuffer(raw, "<i4", C, offs[4]).astype(np.int64),
+                     np.frombuffer(raw, np.uint8, C, offs[5]).astype(np.int64),
+                     np.frombuffer(raw, "<u4", C, offs[2]).astype(np.int64), None, inner)
+
+
+def _decode_topology(topo: _Topology, info: dict, vertices: np.ndarray, triangles: np.ndarray):
+    """The fields of a topology chunk checked against the faces -> disc edges (E, 2), their pieces (E,), curved
+    triangles (C,), endpoints (C, 2), control points (C, 4, 2), degrees (C,), curve pieces (C,)."""
     E, C, C3 = info["disc_edges"], info["curves"], info["cubic_curves"]
     V, T = len(vertices), len(triangles)
     chunk = info["topology"]
-    if chunk == "TOPC":
-        pairs, side, deg, inner = _read_topc(topo, info)
-        edges, ends = pairs[:E], pairs[E:]
-        edge_piece, curve_piece = np.full(E, -1, np.int64), np.full(C, -1, np.int64)
+    edges, edge_piece, ends, curve_piece, deg, ctri, side, inner = topo
+    if side is not None:
         # the triangle holding the directed chord A -> B (side 0) or B -> A (side 1)
         directed = triangles.reshape(-1) * V + np.roll(triangles, -1, axis=1).reshape(-1)
-        want = np.where(side, ends[:, 1] * V + ends[:, 0], ends[:, 0] * V + ends[:, 1])
-        order = np.argsort(directed)
-        pos = np.minimum(np.searchsorted(directed[order], want), len(order) - 1)
-        if C and not np.all(directed[order][pos] == want):
+        at, there = _find_keys(directed, np.where(side, ends[:, 1] * V + ends[:, 0], ends[:, 0] * V + ends[:, 1]))
+        if not np.all(there):
             raise FormatError("TOPC: a curve's chord is not an edge of a triangle on its side")
-        ctri = order[pos] // 3
-    else:
-        f64 = info["control_points"] == "f64"
-        n = 12 * E + 17 * C + (32 * C if f64 else 8 * (C + C3))
-        raw = decompress(topo[_TOPO_HEAD.size:], n, "TOPO")
-        offs = np.cumsum([0, 8 * E, 4 * E, 4 * C, 8 * C, 4 * C, C])
-        edges = np.frombuffer(raw, "<u4", 2 * E, offs[0]).reshape(E, 2).astype(np.int64)
-        edge_piece = np.frombuffer(raw, "<i4", E, offs[1]).astype(np.int64)
-        ctri = np.frombuffer(raw, "<u4", C, offs[2]).astype(np.int64)
-        ends = np.frombuffer(raw, "<u4", 2 * C, offs[3]).reshape(C, 2).astype(np.int64)
-        curve_piece = np.frombuffer(raw, "<i4", C, offs[4]).astype(np.int64)
-        deg = np.frombuffer(raw, np.uint8, C, offs[5]).astype(np.int64)
-        inner = (np.frombuffer(raw, "<f8", 4 * C, offs[6]).reshape(C, 2, 2).astype(np.float64) if f64
-                 else np.frombuffer(raw, "<i4", 2 * (C + C3), offs[6]).reshape(-1, 2).astype(np.int64))
+        ctri = at // 3
     if E and (edges.max() >= V or np.any(edges[:, 0] == edges[:, 1])):
         raise FormatError(f"{chunk}: discontinuous edge with an invalid or repeated vertex")
     if E:
@@ -865,10 +878,9 @@ def _decode_topology(topo: bytes, info: dict, vertices: np.ndarray, triangles: n
     if np.any((deg != 2) & (deg != 3)) or np.count_nonzero(deg == 3) != C3:
         raise FormatError(f"{chunk}: curve degree not in {{2, 3}} or cubic count mismatch")
     A, B = vertices[ends[:, 0]], vertices[ends[:, 1]]
-    if inner.dtype == np.int64:  # barycentric integers on the 2**-b grid
-        one = _BARY_ONE if chunk == "TOPO" else 2.0 ** info["bary_bits"]
+    if inner.ndim == 2:  # barycentric (u, w) rows
         _, _, X = _curve_frame(vertices, triangles, ctri, ends)
-        inner = _from_barycentric(inner / one, deg, A, B, X)
+        inner = _from_barycentric(inner, deg, A, B, X)
     if not np.all(np.isfinite(inner)):
         raise FormatError(f"{chunk}: non-finite control point")
     cp = np.concatenate([A[:, None], inner, B[:, None]], axis=1)
@@ -883,19 +895,19 @@ def decode_mesh(mesh_data: bytes, topo_data: bytes, domain, *, full_validate: bo
     chunk type ``topo_data`` came from, "TOPO" or "TOPC".
     """
     info = mesh_info(mesh_data, topo_data, topology)
+    topo = _read_topology(topo_data, info)
     V, T, bits = info["vertices"], info["triangles"], info["bits"]
     payload = mesh_data[_MESH_HEAD.size:]
     if info["encoding"] in ("draco", "derived"):
         q, triangles = (_decode_draco(payload, V, T, bits) if info["encoding"] == "draco"
-                        else _decode_derived(payload, info, topo_data, domain))
+                        else _decode_derived(payload, info, np.concatenate([topo.edges, topo.ends]), domain))
         vertices = _denormalise(q / float(2**bits - 1), domain)
     else:
         raw = decompress(payload, 16 * V + 12 * T, "MESH")
         vertices = np.frombuffer(raw, "<f8", 2 * V).reshape(V, 2).astype(np.float64)
         triangles = np.frombuffer(raw, "<u4", 3 * T, 16 * V).reshape(T, 3).astype(np.int64)
     check_mesh(vertices, triangles, domain)
-    edges, edge_piece, ctri, ends, cp, deg, curve_piece = _decode_topology(topo_data, info, vertices,
-                                                                           triangles)
+    edges, edge_piece, ctri, ends, cp, deg, curve_piece = _decode_topology(topo, info, vertices, triangles)
     mesh = Mesh(domain=tuple(float(v) for v in domain), vertices=vertices, triangles=triangles,
                 disc_edges=edges, curved_triangles=ctri, curve_endpoints=ends, curve_control_points=cp,
                 curve_degree=deg, disc_edge_piece=edge_piece, curve_piece=curve_piece)
@@ -962,8 +974,8 @@ def roundtrip_mesh(mesh: Mesh, bits: int) -> Mesh:
     Tries Draco with ``bits, bits + 2, ... <= 23`` and then the lossless raw encoding, returning the first
     decoded mesh that passes every check (spec §6.1, ``Mesh.validate``), its topology as TOPC stores it: control
     points rounded to the barycentric grid that keeps them within half a vertex grid step
-    (``tolerance_bary_bits``), no piece ids (-1), edges and curves in canonical order (``_canonical_topology``). Where rounding to a grid turns a thin
-    triangle over, the mesh rounded to that grid and triangulated again (``dfc.geometry.triangulate.retriangulate``)
+    (``tolerance_bary_bits``), no piece ids (-1), edges and curves in canonical order (``_canonical_topology``).
+    Where rounding to a grid turns a thin triangle over, the mesh rounded to that grid and triangulated again (``dfc.geometry.triangulate.retriangulate``)
     is tried before the next grid. Raises ``MeshError`` if even the raw encoding fails, i.e. ``mesh`` itself is
     invalid.
     """
