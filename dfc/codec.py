@@ -28,8 +28,9 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
-from .rate import (DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES, SHORT_FIT_HIDDEN, decoder_hidden,
-                   image_mesh_size, mesh_size_set, sample_mesh_size, sized_mesh)
+from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
+                   SHORT_FIT_HIDDEN, decoder_hidden, image_mesh_size, mesh_size_set, sample_mesh_size, size_at,
+                   sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -80,8 +81,10 @@ class EncodeReport:
     with the data's range and the units it was fitted in (``dfc.field.units.describe``). ``psnr_reference``:
     against the exact values given as ``reference``, on the same scale (sample sets), else None. ``target_psnr``: the
     PSNR the encode aimed at (``EncodeSettings.target_psnr``, or ``FEM_TARGET_PSNR`` by default for a FEM solution),
-    else None. ``feature_bits``: the bits the features were stored with. ``pixel_filter``: the filter an image read
-    whole was fitted and stored with, and ``pixel_evidence`` why ``auto`` chose it (``Detection.evidence``)."""
+    else None. ``feature_bits``: the bits the features were stored with; ``fallback_from``: the bits whose smallest
+    mesh a byte target could not hold when the encoder fell back to fewer (``dfc.rate.FEATURE_BITS_FALLBACK``), else
+    None. ``pixel_filter``: the filter an image read whole was fitted and stored with, and ``pixel_evidence`` why
+    ``auto`` chose it (``Detection.evidence``)."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -97,6 +100,7 @@ class EncodeReport:
     psnr_reference: float | None = None
     target_psnr: float | None = None
     feature_bits: int = DEFAULT_FEATURE_BITS
+    fallback_from: int | None = None
     pixel_filter: str | None = None
     pixel_evidence: str | None = None
     units: str = ""
@@ -160,8 +164,8 @@ def _feature_bits(encode):
     """``encode(signal, curves, settings, **kw)`` with the default ``settings.feature_bits`` (None) resolved:
     ``DEFAULT_FEATURE_BITS``; when a byte target is too small for the smallest mesh with them, each of
     ``dfc.rate.FEATURE_BITS_FALLBACK`` in turn (a target is refused before any fitting, so a retry costs only the
-    mesh sizing). An encoder taking ``chosen_bits`` is told so (its byte target's fill may then store one bit
-    fewer, ``_fill_within``); bits given in ``settings`` are kept as given."""
+    mesh sizing; the report's ``fallback_from`` then says so). An encoder taking ``chosen_bits`` is told so (its byte
+    target's fill may then store fewer bits, ``_refine``); bits given in ``settings`` are kept as given."""
     chooses = "chosen_bits" in inspect.signature(encode).parameters
 
     @functools.wraps(encode)
@@ -171,12 +175,16 @@ def _feature_bits(encode):
             return encode(signal, curves, settings, **kw)
         kw = {**kw, "chosen_bits": True} if chooses else kw
         tried = (DEFAULT_FEATURE_BITS, *(FEATURE_BITS_FALLBACK if settings.target_bytes else ()))
-        for bits in tried[:-1]:
+        for bits in tried:
             try:
-                return encode(signal, curves, replace(settings, feature_bits=bits), **kw)
+                blob, report = encode(signal, curves, replace(settings, feature_bits=bits), **kw)
             except TargetBytesError:
-                pass
-        return encode(signal, curves, replace(settings, feature_bits=tried[-1]), **kw)
+                if bits == tried[-1]:
+                    raise
+                continue
+            if bits != DEFAULT_FEATURE_BITS and report is not None:  # None: a rank of a distributed encode but 0
+                report.fallback_from = DEFAULT_FEATURE_BITS
+            return blob, report
 
     return resolved
 
@@ -200,7 +208,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     curves_info : where the curves came from, stored in the file's encoder info under ``curves`` (``dfc encode
         --curves auto``: extracted from the image, with the extractor's settings)
     chosen_bits : the feature bits are the encoder's choice (``settings.feature_bits`` was None): a byte target's
-        fill may store one bit fewer (``_fill_within``)
+        fill may store fewer (``_refine``)
 
     The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
     is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).
@@ -551,7 +559,7 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
     ``fit_samples`` or ``fit_frames``) to ``signal`` on it, and refine ``settings.refine`` times (``_refine``, with
     ``residual(model) -> (xy (M, 2), squared error (M,))``, triangles of at least ``min_area`` split,
     ``size_of(model) -> bytes`` of its file for a byte target, ``quality(model) -> dB`` for a PSNR target and
-    ``fewer_bits`` for ``_fill_within``); ``fit_kw`` go to ``fit_fn``. Returns (model, seconds per stage)."""
+    ``fewer_bits`` for ``_refine``); ``fit_kw`` go to ``fit_fn``. Returns (model, seconds per stage)."""
     clock = time.perf_counter()
     mesh_settings, mesh = (settings, mesh) if mesh is not None else sized_mesh(curves, settings, channels, size_of)
     seconds = {"mesh_s": time.perf_counter() - clock}
@@ -576,17 +584,22 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
     (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
     files priced with ``size_of``), and a refit whose file still outgrows the target is redone (``_fill_within``,
-    ``fewer_bits`` as it says). Stops early when no triangle is left to split, or when ``quality(model)`` reaches
-    ``settings.target_psnr``."""
+    ``fewer_bits`` as it says). With ``fewer_bits`` (the encoder chose the bits), a fill from a fit at those bits
+    prices and refits at ``dfc.rate.COARSE_FEATURE_BITS`` when they cost the fit little (``_coarse_costs_little``).
+    Stops early when no triangle is left to split, or when ``quality(model)`` reaches ``settings.target_psnr``."""
     from .rate import build_mesh, fill_points, refinement_points
 
     extra = np.zeros((0, 2))
     steps = settings.refine_steps or max(1, settings.steps // 2)
+    chosen = settings.feature_bits  # the bits the encoder chose: the settings', or the coarse ones once switched
 
     def refit(points, bits):
         mesh = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, points]))
-        return fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model,
-                      **{**fit_kw, "feature_bits": bits})
+        fitted = fit_fn(signal, mesh, replace(settings.fit, steps=steps, qat_steps=None), init=model,
+                        **{**fit_kw, "feature_bits": bits})
+        if fitted.quantization is None:  # too few steps for quantisation-aware ones: stored with the bits asked for
+            fitted.quantization = {"feature_bits": bits}
+        return fitted
 
     for _ in range(settings.refine):
         if settings.target_psnr is not None and quality(model) >= settings.target_psnr:
@@ -599,15 +612,29 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
             points = refinement_points(mesh, xy, err, most=most, min_area=min_area)
             refined = refit(points, bits) if len(points) else None
         else:
+            if fewer_bits and bits == chosen and _coarse_costs_little(model, residual, err, bits):
+                bits = chosen = COARSE_FEATURE_BITS
             points = fill_points(model, curves, mesh_settings, extra, xy, err, size_of, settings.target_bytes,
-                                 min_area=min_area)
+                                 min_area=min_area, bits=bits)
             refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes, bits,
-                                           fewer_bits and bits == settings.feature_bits)  # one bit fewer at most
+                                           fewer_bits and bits == chosen)  # one bit fewer than chosen at most
         if refined is None:
             break
         extra = np.concatenate([extra, points])
         model = refined
     return model
+
+
+def _coarse_costs_little(model, residual, err: np.ndarray, bits: int) -> bool:
+    """Whether ``model``'s features stored with ``COARSE_FEATURE_BITS`` instead of ``bits`` raise its squared error
+    ``err`` (M,) at the points of ``residual(model) -> (xy, squared error)`` by less than ``COARSE_LOSS_DB``."""
+    if bits <= COARSE_FEATURE_BITS:
+        return False
+    saved = model.quantization
+    model.quantization = {"feature_bits": COARSE_FEATURE_BITS}
+    coarse = residual(model)[1]
+    model.quantization = saved
+    return 10.0 * math.log10(max(float(coarse.sum()), 1e-300) / max(float(err.sum()), 1e-300)) < COARSE_LOSS_DB
 
 
 def _fill_within(model, points: np.ndarray, refit, size_of, target: int, bits: int, fewer_bits: bool = False):
@@ -629,7 +656,7 @@ def _fill_within(model, points: np.ndarray, refit, size_of, target: int, bits: i
         if fewer_bits and bits > 1 and attempt == FILL_RETRIES - 1:
             bits, fewer_bits = bits - 1, False
             continue
-        base = size_of(model) if base is None else base
+        base = size_at(size_of, model, bits) if base is None else base
         keep = int(len(points) * FILL * (target - base) / max(size - base, 1))
         points = points[:max(0, min(keep, len(points) - 1))]
     return None, points[:0]

@@ -19,10 +19,10 @@ from .geometry.curves import Curves
 from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
-__all__ = ["DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL", "FILL_CARRY_POINTS", "FILL_RETRIES",
-           "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE", "SHORT_FIT_HIDDEN",
-           "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size", "mesh_for_bytes",
-           "mesh_size_set", "refinement_points", "sample_mesh_size", "sized_mesh"]
+__all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
+           "FILL_CARRY_POINTS", "FILL_RETRIES", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE",
+           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size",
+           "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "size_at", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -50,6 +50,13 @@ FEATURE_BITS_FALLBACK = (8, 6)
 """Feature bits an encode with the default bits (``dfc.codec.EncodeSettings.feature_bits`` None) tries, in order,
 when its byte target is too small for the smallest mesh with ``dfc.field.quantize.DEFAULT_FEATURE_BITS`` (with a
 note; CHANGELOG.md, "Small byte targets keep working")."""
+COARSE_FEATURE_BITS = 8
+"""Feature bits a byte target's fill switches to when the encoder chose the bits and its first fit, stored with
+them, loses less than ``COARSE_LOSS_DB`` (``dfc.codec._refine``): where the fit's own error dwarfs the features'
+rounding, the bytes two bits fewer save buy triangles (CHANGELOG.md, "Coarser features where they cost nothing")."""
+COARSE_LOSS_DB = 0.5
+"""Largest loss (dB of the squared error at the refinement's points) of the first fit at ``COARSE_FEATURE_BITS``
+for which a fill switches to them."""
 DECODER_HIDDEN = (8, 32)
 """Narrowest and widest hidden layers ``decoder_hidden`` gives an image. 32, not the paper's 64: at the default 3,000
 steps a 32-wide decoder gives smaller files at about the same PSNR on real content, and fits faster (CHANGELOG.md,
@@ -101,14 +108,15 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
 
 
 def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.ndarray, error: np.ndarray,
-                size_of, target: int, *, min_area: float = 0.0) -> np.ndarray:
+                size_of, target: int, *, min_area: float = 0.0, bits: int | None = None) -> np.ndarray:
     """Refinement vertices (P, 2) float64 that fill a byte target: the centroids of the triangles to split, in
     decreasing order of the error summed in them (``refinement_points`` with every triangle allowed), as many as
     keep the file within ``FILL`` × ``target`` bytes.
 
     A candidate count is priced by the file of ``model`` carried onto the refined mesh (``build_mesh`` with
     ``mesh_settings``, ``extra`` (E, 2) and the candidates; ``dfc.field.transfer.carry_over`` at up to
-    ``FILL_CARRY_POINTS`` of ``xy``): ``size_of(model) -> bytes`` writes it as the encoder will. Fitted features are
+    ``FILL_CARRY_POINTS`` of ``xy``): ``size_of(model) -> bytes`` writes it as the encoder will (with ``bits`` per
+    feature when given: the bits the refit will store, ``FieldModel.quantization``). Fitted features are
     smoother than random ones, so this is what the sizing probe of ``mesh_for_bytes`` (a random bank) cannot know.
     The count is found by regula falsi on the file size, nearly linear in it: at most ``TARGET_BYTES_PROBES`` files,
     stopping within 2 % of the count. No vertex when the file is already at the target.
@@ -121,13 +129,13 @@ def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.
     budget, n = FILL * target, len(candidates)
     config, device = model.config(), model.field.bank.device
     xy = xy[::max(1, len(xy) // FILL_CARRY_POINTS)]
-    known = {0: size_of(model)}  # candidate count -> bytes of the file
+    known = {0: size_at(size_of, model, bits)}  # candidate count -> bytes of the file
 
     def price(k: int) -> int:
         refined = build_mesh(curves, mesh_settings, extra_points=np.concatenate([extra, candidates[:k]]))
         carried = FieldModel.from_config(refined, config, device=device)
         carry_over(model, carried, xy)
-        known[k] = size_of(carried)
+        known[k] = size_at(size_of, carried, bits)
         return known[k]
 
     lo, hi = 0, n + 1  # the largest count known to fit, the smallest known not to (n + 1: none)
@@ -142,6 +150,19 @@ def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.
         a, b = (lo, hi) if hi <= n else (min(known), lo)  # regula falsi within the bracket, else extrapolate
         slope = (known[b] - known[a]) / (b - a) if b > a else slope
     return candidates[:lo]
+
+
+def size_at(size_of, model, bits: int | None) -> int:
+    """``size_of(model)`` (bytes of its file) with the features stored with ``bits`` (``FieldModel.quantization``;
+    None: as ``model`` stores them); ``model`` is left as it was."""
+    if bits is None:
+        return size_of(model)
+    saved = model.quantization
+    model.quantization = {"feature_bits": bits}
+    try:
+        return size_of(model)
+    finally:
+        model.quantization = saved
 
 
 def sized_mesh(curves: Curves, settings, channels: list[str], size_of=None) -> tuple[object, Mesh]:

@@ -179,6 +179,16 @@ def test_target_bytes_stays_a_cap_when_the_fill_overshoots(scene, monkeypatch):
     assert report.n_triangles > probe.n_triangles
 
 
+class _Fill:
+    """A stand-in model for ``_fill_within``: its fill points ``n`` and the feature bits its file stores."""
+
+    def __init__(self, n: int, bits: int = 10):
+        self.n, self.quantization = n, {"feature_bits": bits}
+
+    def key(self) -> tuple[int, int]:
+        return self.n, self.quantization["feature_bits"]
+
+
 def test_fill_within_cuts_the_points_in_proportion_and_gives_up():
     from dfc.codec import _fill_within
 
@@ -187,14 +197,14 @@ def test_fill_within_cuts_the_points_in_proportion_and_gives_up():
 
     def refit(p, bits):
         tried.append((len(p), bits))
-        return len(p)
+        return _Fill(len(p), bits)
 
     def size_of(m):  # 1,000 bytes without fill points, 100 bytes per point
-        return 1_000 + 100 * m
+        return 1_000 + 100 * m.n
 
-    model = 0
+    model = _Fill(0)
     refined, used = _fill_within(model, points, refit, size_of, target=3_000, bits=10)
-    assert tried[0] == (50, 10) and refined == len(used) <= 20 and tried[-1] == (len(used), 10) and len(tried) == 2
+    assert tried[0] == (50, 10) and refined.n == len(used) <= 20 and tried[-1] == (len(used), 10) and len(tried) == 2
     np.testing.assert_array_equal(used, points[:len(used)])  # the points with the largest error first
     tried.clear()
     refined, used = _fill_within(model, points, refit, size_of, target=900, bits=10)  # over it before any point
@@ -241,18 +251,23 @@ def test_fill_within_stores_a_bit_fewer_on_its_last_try_when_the_bits_are_its_ch
 
     def refit(p, bits):
         tried.append((len(p), bits))
-        return len(p), bits
+        return _Fill(len(p), bits)
 
     def size_of(m):  # the first fit 1,000 bytes; a refit 300 more, then 100 a point; bytes in proportion to the bits
-        n, bits = m
+        n, bits = m.key()
         return (1_000 + (300 + 100 * n if n else 0)) * bits // 10
 
-    first = (0, 10)
+    first = _Fill(0, 10)
     refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10, fewer_bits=True)
-    assert tried == [(50, 10), (10, 10), (10, 9)] and refined == (10, 9) and len(used) == 10
+    assert tried == [(50, 10), (10, 10), (10, 9)] and refined.key() == (10, 9) and len(used) == 10
     tried.clear()
     refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10)
-    assert tried == [(50, 10), (10, 10), (8, 10)] and refined == (8, 10)
+    assert tried == [(50, 10), (10, 10), (8, 10)] and refined.key() == (8, 10)
+    tried.clear()
+    # a fill at fewer bits than the first fit's (dfc.rate.COARSE_FEATURE_BITS): the first file is priced at them too
+    # (800 bytes, not 1,000), so the first cut keeps 16 points, not 14
+    refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=8)
+    assert tried == [(50, 8), (16, 8), (14, 8)] and refined.key() == (14, 8) and first.key() == (0, 10)
 
 
 def test_target_psnr_refines_until_the_fit_reaches_it(scene):

@@ -184,7 +184,7 @@ def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewe
     target = (at8 + at10) // 2
     settings = EncodeSettings(target_bytes=target, steps=5, batch_size=1024, refine=0)
     blob, report = encode_image(image, scene.curves, settings, fit_curves=True)
-    assert report.feature_bits == 8 and len(blob) <= target
+    assert report.feature_bits == 8 and report.fallback_from == DEFAULT_FEATURE_BITS and len(blob) <= target
     path = tmp_path / "small.dfield"
     path.write_bytes(blob)
     assert read_dfield_info(path)["features"]["bits"] == 8  # the file stores what the report says
@@ -194,3 +194,82 @@ def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewe
     _, default = encode_image(image, scene.curves, EncodeSettings(max_triangles=200, steps=5, batch_size=1024),
                               fit_curves=True)
     assert default.feature_bits == DEFAULT_FEATURE_BITS  # no byte target: the default bits
+
+
+
+def test_a_fill_priced_at_fewer_feature_bits_buys_more_triangles(scene):
+    """``fill_points(bits=B)`` prices every candidate file with B-bit features (the bits the refit will store):
+    the same target buys more vertices at 8 bits than at 10."""
+    import numpy as np
+
+    from dfc.codec import check_domain
+    from dfc.io.container import encode_dfield
+    from dfc.io.dfield import to_contents
+    from dfc.rate import build_mesh, fill_points
+    from dfc.render import window_points
+    from dfc.train.fit import fit_image
+
+    image = scene.render(48, 48, spp=1)
+    curves = check_domain(scene.curves, 48, 48, fit=True)
+    settings = EncodeSettings(max_triangles=200)
+    xy = window_points(curves.domain, 48, 48)
+    err = np.abs(np.sin(xy[:, 0] * 0.3)) + 0.1
+    priced = []
+
+    def size_of(m):
+        bits = (m.quantization or {}).get("feature_bits", 10)
+        priced.append(bits)
+        return len(encode_dfield(to_contents(m), mesh_validated=True, feature_bits=bits)[0])
+
+    counts = {}
+    for bits in (10, 8):
+        model = fit_image(image, build_mesh(curves, settings), steps=20, batch_size=512, hidden=16, feature_bits=10)
+        target = int(1.2 * size_of(model))  # the same target for both: 20 % over the 10-bit file
+        priced.clear()
+        counts[bits] = len(fill_points(model, curves, settings, np.zeros((0, 2)), xy, err, size_of, target, bits=bits))
+        assert set(priced) == {bits}
+    assert 0 < counts[10] < counts[8]
+
+
+def test_a_fill_switches_to_coarse_features_only_when_they_cost_the_fit_little():
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from dfc.codec import _coarse_costs_little
+    from dfc.rate import COARSE_FEATURE_BITS, COARSE_LOSS_DB
+
+    err = np.full(100, 1e-3)
+
+    def residual_losing(db):  # squared error db decibels higher at the coarse bits
+        return lambda m: (None, err * 10 ** (db / 10) if m.quantization["feature_bits"] == COARSE_FEATURE_BITS else err)
+
+    model = SimpleNamespace(quantization={"feature_bits": 10})
+    assert _coarse_costs_little(model, residual_losing(0.9 * COARSE_LOSS_DB), err, 10)
+    assert model.quantization == {"feature_bits": 10}  # the model is left as it was
+    assert not _coarse_costs_little(model, residual_losing(1.1 * COARSE_LOSS_DB), err, 10)
+    assert not _coarse_costs_little(model, residual_losing(0.0), err, COARSE_FEATURE_BITS)  # no coarser than that
+
+
+@pytest.mark.slow
+def test_a_noisy_image_under_a_byte_target_stores_coarse_features(scene, tmp_path):
+    """Noise dominates the fit's error: the fill stores ``COARSE_FEATURE_BITS`` and spends the bytes they save,
+    within the target; bits the caller gives are kept."""
+    import numpy as np
+
+    from dfc.codec import encode_image
+    from dfc.io.container import read_dfield_info
+    from dfc.rate import COARSE_FEATURE_BITS
+
+    rng = np.random.default_rng(0)
+    image = (scene.render(64, 64) + rng.normal(0.0, 0.05, (64, 64, 3))).astype(np.float32)
+    settings = EncodeSettings(target_bytes=1500, steps=100, batch_size=1024, refine=1)
+    blob, report = encode_image(image, scene.curves, settings, fit_curves=True)
+    assert report.feature_bits == COARSE_FEATURE_BITS and len(blob) <= 1500
+    assert report.fallback_from is None  # stored coarse by choice, not because the target was too small
+    path = tmp_path / "noisy.dfield"
+    path.write_bytes(blob)
+    assert read_dfield_info(path)["features"]["bits"] == COARSE_FEATURE_BITS
+    kept, given = encode_image(image, scene.curves, EncodeSettings(target_bytes=1500, steps=100, batch_size=1024,
+                                                                   refine=1, feature_bits=10), fit_curves=True)
+    assert given.feature_bits == 10 and len(kept) <= 1500
