@@ -29,8 +29,8 @@ from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, decoder_hidden, image_mesh_size, mesh_size_set, sample_mesh_size, size_at,
-                   sized_mesh)
+                   SHORT_FIT_HIDDEN, decoder_hidden, features_at, image_mesh_size, mesh_size_set, sample_mesh_size,
+                   size_at, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -630,10 +630,8 @@ def _coarse_costs_little(model, residual, err: np.ndarray, bits: int) -> bool:
     ``err`` (M,) at the points of ``residual(model) -> (xy, squared error)`` by less than ``COARSE_LOSS_DB``."""
     if bits <= COARSE_FEATURE_BITS:
         return False
-    saved = model.quantization
-    model.quantization = {"feature_bits": COARSE_FEATURE_BITS}
-    coarse = residual(model)[1]
-    model.quantization = saved
+    with features_at(model, COARSE_FEATURE_BITS):
+        coarse = residual(model)[1]
     return 10.0 * math.log10(max(float(coarse.sum()), 1e-300) / max(float(err.sum()), 1e-300)) < COARSE_LOSS_DB
 
 

@@ -9,6 +9,7 @@ targets ``dim``, ``feature_bits`` (an int: the encoders resolve the default, ``d
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -21,8 +22,9 @@ from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
 
 __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
            "FILL_CARRY_POINTS", "FILL_RETRIES", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE",
-           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "fill_points", "image_mesh_size",
-           "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "size_at", "sized_mesh"]
+           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "features_at", "fill_points",
+           "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "size_at",
+           "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -152,17 +154,25 @@ def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.
     return candidates[:lo]
 
 
-def size_at(size_of, model, bits: int | None) -> int:
-    """``size_of(model)`` (bytes of its file) with the features stored with ``bits`` (``FieldModel.quantization``;
-    None: as ``model`` stores them); ``model`` is left as it was."""
-    if bits is None:
-        return size_of(model)
+@contextmanager
+def features_at(model, bits: int):
+    """Within the block, ``model`` (a ``FieldModel``, or anything with its ``quantization``) reads and stores its
+    features with ``bits`` (``quantization = {"feature_bits": bits}``); afterwards its mode is what it was."""
     saved = model.quantization
     model.quantization = {"feature_bits": bits}
     try:
-        return size_of(model)
+        yield model
     finally:
         model.quantization = saved
+
+
+def size_at(size_of, model, bits: int | None) -> int:
+    """``size_of(model)`` (bytes of its file) with the features stored with ``bits`` (``features_at``; None: as
+    ``model`` stores them)."""
+    if bits is None:
+        return size_of(model)
+    with features_at(model, bits):
+        return size_of(model)
 
 
 def sized_mesh(curves: Curves, settings, channels: list[str], size_of=None) -> tuple[object, Mesh]:

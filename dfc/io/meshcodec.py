@@ -1,4 +1,5 @@
-"""Mesh encoding for ``.dfield`` files: the ``MESH`` and ``TOPO`` or ``TOPC`` chunk payloads (spec/dfield.md §6.1–6.2).
+"""Mesh encoding for ``.dfield`` files: the ``MESH`` and ``TOPO`` or ``TOPC`` chunk payloads (spec/dfield.md
+§6.1–6.2).
 
 Vertices are quantised to an integer grid over the domain rectangle (``M = 2**bits - 1`` steps per axis, so
 border vertices stay exactly on the border) and the grid mesh is compressed with Draco's edgebreaker, or (the
@@ -975,9 +976,9 @@ def roundtrip_mesh(mesh: Mesh, bits: int) -> Mesh:
     decoded mesh that passes every check (spec §6.1, ``Mesh.validate``), its topology as TOPC stores it: control
     points rounded to the barycentric grid that keeps them within half a vertex grid step
     (``tolerance_bary_bits``), no piece ids (-1), edges and curves in canonical order (``_canonical_topology``).
-    Where rounding to a grid turns a thin triangle over, the mesh rounded to that grid and triangulated again (``dfc.geometry.triangulate.retriangulate``)
-    is tried before the next grid. Raises ``MeshError`` if even the raw encoding fails, i.e. ``mesh`` itself is
-    invalid.
+    Where rounding to a grid turns a thin triangle over, the mesh rounded to that grid and triangulated again
+    (``dfc.geometry.triangulate.retriangulate``) is tried before the next grid. Raises ``MeshError`` if even the raw
+    encoding fails, i.e. ``mesh`` itself is invalid.
     """
     valid = None  # whether ``mesh`` itself is valid, checked once, when a grid first fails: an invalid one is refused
     for step in _ladder(bits):
