@@ -585,7 +585,8 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
     files priced with ``size_of``), and a refit whose file still outgrows the target is redone (``_fill_within``,
     ``fewer_bits`` as it says). With ``fewer_bits`` (the encoder chose the bits), a fill from a fit at those bits
-    prices and refits at ``dfc.rate.COARSE_FEATURE_BITS`` when they cost the fit little (``_coarse_costs_little``).
+    prices and refits at ``dfc.rate.COARSE_FEATURE_BITS`` when they cost the fit little (``_coarse_costs_little``),
+    after a refit on the mesh the target buys at those bits (``dfc.rate.sized_mesh``) when it is the first round.
     Stops early when no triangle is left to split, or when ``quality(model)`` reaches ``settings.target_psnr``."""
     from .rate import build_mesh, fill_points, refinement_points
 
@@ -614,6 +615,11 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
         else:
             if fewer_bits and bits == chosen and _coarse_costs_little(model, residual, err, bits):
                 bits = chosen = COARSE_FEATURE_BITS
+                if not len(extra):  # the first mesh was sized for more bits: refit on one sized for these
+                    mesh_settings = sized_mesh(curves, settings, model.channels,
+                                               lambda m: size_at(size_of, m, COARSE_FEATURE_BITS))[0]
+                    model = refit(extra, bits)
+                    xy, err = residual(model)
             points = fill_points(model, curves, mesh_settings, extra, xy, err, size_of, settings.target_bytes,
                                  min_area=min_area, bits=bits)
             refined, points = _fill_within(model, points, refit, size_of, settings.target_bytes, bits,

@@ -157,9 +157,10 @@ def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.
 @contextmanager
 def features_at(model, bits: int):
     """Within the block, ``model`` (a ``FieldModel``, or anything with its ``quantization``) reads and stores its
-    features with ``bits`` (``quantization = {"feature_bits": bits}``); afterwards its mode is what it was."""
+    features with ``bits`` (``quantization["feature_bits"] = bits``, its weights' quantisation kept); afterwards its
+    mode is what it was."""
     saved = model.quantization
-    model.quantization = {"feature_bits": bits}
+    model.quantization = {**(saved or {}), "feature_bits": bits}
     try:
         yield model
     finally:

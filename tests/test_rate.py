@@ -242,34 +242,51 @@ def test_a_fill_switches_to_coarse_features_only_when_they_cost_the_fit_little()
     err = np.full(100, 1e-3)
 
     def residual_losing(db):  # squared error db decibels higher at the coarse bits
-        return lambda m: (None, err * 10 ** (db / 10) if m.quantization["feature_bits"] == COARSE_FEATURE_BITS else err)
+        def residual(m):
+            assert m.quantization["weight_bits"] == 8  # measured with the weights as they are stored
+            coarse = m.quantization["feature_bits"] == COARSE_FEATURE_BITS
+            return None, err * 10 ** (db / 10) if coarse else err
+        return residual
 
-    model = SimpleNamespace(quantization={"feature_bits": 10})
+    model = SimpleNamespace(quantization={"feature_bits": 10, "weight_bits": 8})
     assert _coarse_costs_little(model, residual_losing(0.9 * COARSE_LOSS_DB), err, 10)
-    assert model.quantization == {"feature_bits": 10}  # the model is left as it was
+    assert model.quantization == {"feature_bits": 10, "weight_bits": 8}  # the model is left as it was
     assert not _coarse_costs_little(model, residual_losing(1.1 * COARSE_LOSS_DB), err, 10)
     assert not _coarse_costs_little(model, residual_losing(0.0), err, COARSE_FEATURE_BITS)  # no coarser than that
 
 
 @pytest.mark.slow
-def test_a_noisy_image_under_a_byte_target_stores_coarse_features(scene, tmp_path):
+def test_a_noisy_image_under_a_byte_target_stores_coarse_features(scene, tmp_path, monkeypatch):
     """Noise dominates the fit's error: the fill stores ``COARSE_FEATURE_BITS`` and spends the bytes they save,
-    within the target; bits the caller gives are kept."""
+    within the target, refitting first on a mesh sized for them (more triangles than the first); bits the caller
+    gives are kept."""
     import numpy as np
 
+    import dfc.codec
     from dfc.codec import encode_image
     from dfc.io.container import read_dfield_info
-    from dfc.rate import COARSE_FEATURE_BITS
+    from dfc.rate import COARSE_FEATURE_BITS, sized_mesh
 
+    sized = []  # triangles of each mesh a byte target sized
+
+    def recorded(*args, **kwargs):
+        mesh_settings, mesh = sized_mesh(*args, **kwargs)
+        sized.append(mesh.n_triangles)
+        return mesh_settings, mesh
+
+    monkeypatch.setattr(dfc.codec, "sized_mesh", recorded)
     rng = np.random.default_rng(0)
     image = (scene.render(64, 64) + rng.normal(0.0, 0.05, (64, 64, 3))).astype(np.float32)
     settings = EncodeSettings(target_bytes=1500, steps=100, batch_size=1024, refine=1)
     blob, report = encode_image(image, scene.curves, settings, fit_curves=True)
     assert report.feature_bits == COARSE_FEATURE_BITS and len(blob) <= 1500
     assert report.fallback_from is None  # stored coarse by choice, not because the target was too small
+    assert len(sized) == 2 and sized[1] > sized[0]  # the first mesh, then one sized for the coarse features
+    assert report.n_triangles >= sized[1]  # the fill refines that one
     path = tmp_path / "noisy.dfield"
     path.write_bytes(blob)
     assert read_dfield_info(path)["features"]["bits"] == COARSE_FEATURE_BITS
     kept, given = encode_image(image, scene.curves, EncodeSettings(target_bytes=1500, steps=100, batch_size=1024,
                                                                    refine=1, feature_bits=10), fit_curves=True)
     assert given.feature_bits == 10 and len(kept) <= 1500
+    assert len(sized) == 3  # no switch, no second sizing
