@@ -644,12 +644,12 @@ def _coarse_costs_little(model, residual, err: np.ndarray, bits: int) -> bool:
 def _fill_within(model, points: np.ndarray, refit, size_of, target: int, bits: int, fewer_bits: bool = False):
     """(refitted model, points (P, 2) it used), or (None, no points) when even the fewest fill points outgrow
     ``target``: ``refit(points, bits)`` on the fill's points (``dfc.rate.fill_points``, in decreasing order of error)
-    with ``bits`` per feature. While the file is over ``target`` bytes (the refit's features can cost more than the
-    carried-over ones it was priced with, by up to a tenth of the target, varying with the seed), at most
-    ``FILL_RETRIES`` times: on a prefix of the points cut in proportion to the overshoot, the last time (with
-    ``fewer_bits``) on the same points at one bit fewer per feature, about a tenth of the features' bytes
-    (``CHANGELOG.md``, "A byte target's fill stores a bit fewer rather than nothing")."""
-    base = None
+    with ``bits`` per feature. While the file is over ``target`` bytes (the refit's features cost more than the
+    carried-over ones it was priced with), at most ``FILL_RETRIES`` times, on a prefix of the points (``_cut``).
+    With ``fewer_bits``, the last retry, or the first that no cut can bring within the target, keeps the points at
+    one bit fewer per feature, about a tenth of the features' bytes (``CHANGELOG.md``, "A byte target's fill stores a
+    bit fewer rather than nothing")."""
+    base, sizes = None, []  # sizes: (points, bytes) of each refit
     for attempt in range(FILL_RETRIES + 1):
         if not len(points):
             break
@@ -657,13 +657,27 @@ def _fill_within(model, points: np.ndarray, refit, size_of, target: int, bits: i
         size = size_of(refined)
         if size <= target:
             return refined, points
-        if fewer_bits and bits > 1 and attempt == FILL_RETRIES - 1:
-            bits, fewer_bits = bits - 1, False
-            continue
+        sizes.append((len(points), size))
         base = size_at(size_of, model, bits) if base is None else base
-        keep = int(len(points) * FILL * (target - base) / max(size - base, 1))
+        keep = _cut(sizes, base, target)
+        if fewer_bits and bits > 1 and (attempt == FILL_RETRIES - 1 or keep < 1):
+            refined = refit(points, bits - 1)
+            return (refined, points) if size_of(refined) <= target else (None, points[:0])
         points = points[:max(0, min(keep, len(points) - 1))]
     return None, points[:0]
+
+
+def _cut(sizes: list[tuple[int, int]], base: int, target: int) -> int:
+    """Fill points a refit keeps for a file of ``FILL`` × ``target`` bytes, from ``sizes`` ((points, bytes) of the
+    refits so far, all over ``target``): after one, in proportion to its overshoot over ``base`` (the file with no
+    point); after more, where the line through the last two meets ``FILL`` × ``target``, since a refit costs more than
+    ``base`` even with few points (below 1: no count does)."""
+    n1, s1 = sizes[-1]
+    if len(sizes) == 1 or sizes[-2][0] == n1:
+        return int(n1 * FILL * (target - base) / max(s1 - base, 1))
+    n0, s0 = sizes[-2]
+    slope = (s0 - s1) / (n0 - n1)
+    return int(n1 - (s1 - FILL * target) / slope) if slope > 0 else 0
 
 
 def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) -> np.ndarray:

@@ -42,10 +42,10 @@ triangles of its square, plus what the curves force."""
 FILL = 0.97
 """Refinement under a byte target aims at this share of the target (``fill_points``): the refit changes the
 features' bytes by a few per cent."""
-FILL_RETRIES = 2
+FILL_RETRIES = 3
 """Under a byte target, refits redone when the refitted file still outgrows the target (``dfc.codec._fill_within``:
-with fewer fill points, the last time at one feature bit fewer when the encoder chose the bits): the refit's features
-can cost more bytes than the carried-over ones ``fill_points`` priced."""
+with fewer fill points, the last time, or once no cut can fit, at one feature bit fewer when the encoder chose the
+bits): the refit's features can cost more bytes than the carried-over ones ``fill_points`` priced."""
 FILL_CARRY_POINTS = 1 << 14
 """``fill_points`` prices a candidate mesh with a carry-over fitted at about this many of the caller's points."""
 FEATURE_BITS_FALLBACK = (8, 6)

@@ -241,9 +241,10 @@ def test_the_report_and_the_encoder_record_say_the_bits_the_file_stores(small_en
     assert report.feature_bits == 9 and loads(out).header["encoder"]["feature_bits"] == 9 and info["feature_bits"] == 10
 
 
-def test_fill_within_stores_a_bit_fewer_on_its_last_try_when_the_bits_are_its_choice():
-    """A refit costs more than its points (its features are less smooth than the carried-over ones): the last retry
-    keeps the points and drops a feature bit when the encoder chose the bits, and cuts points again when not."""
+def test_fill_within_cuts_along_the_refits_and_stores_a_bit_fewer_when_no_cut_fits():
+    """A refit costs more than its points (its features are less smooth than the carried-over ones): after the first
+    proportional cut, a cut follows the line through the last two refits; when that line says no count fits, the
+    points are kept at one feature bit fewer if the encoder chose the bits, and nothing is refitted if not."""
     from dfc.codec import _fill_within
 
     points = np.arange(100.0).reshape(50, 2)
@@ -258,16 +259,26 @@ def test_fill_within_stores_a_bit_fewer_on_its_last_try_when_the_bits_are_its_ch
         return (1_000 + (300 + 100 * n if n else 0)) * bits // 10
 
     first = _Fill(0, 10)
-    refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10, fewer_bits=True)
-    assert tried == [(50, 10), (10, 10), (10, 9)] and refined.key() == (10, 9) and len(used) == 10
-    tried.clear()
-    refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10)
-    assert tried == [(50, 10), (10, 10), (8, 10)] and refined.key() == (8, 10)
+    for fewer_bits in (True, False):  # a cut fits: the bits are kept either way
+        tried.clear()
+        refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=10, fewer_bits=fewer_bits)
+        assert tried == [(50, 10), (10, 10), (8, 10)] and refined.key() == (8, 10) and len(used) == 8
     tried.clear()
     # a fill at fewer bits than the first fit's (dfc.rate.COARSE_FEATURE_BITS): the first file is priced at them too
     # (800 bytes, not 1,000), so the first cut keeps 16 points, not 14
     refined, used = _fill_within(first, points, refit, size_of, target=2_200, bits=8)
-    assert tried == [(50, 8), (16, 8), (14, 8)] and refined.key() == (14, 8) and first.key() == (0, 10)
+    assert tried == [(50, 8), (16, 8), (13, 8)] and refined.key() == (13, 8) and first.key() == (0, 10)
+
+    def costly(m):  # a refit 1,150 bytes over the first fit at 10 bits, 800 at 9, plus 10 a point: no cut fits at 10
+        n, bits = m.key()
+        return 1_000 + ((1_150 if bits == 10 else 800) + 10 * n if n else 0)
+
+    tried.clear()
+    refined, used = _fill_within(first, points, refit, costly, target=2_200, bits=10, fewer_bits=True)
+    assert tried == [(50, 10), (35, 10), (35, 9)] and refined.key() == (35, 9) and len(used) == 35
+    tried.clear()
+    refined, used = _fill_within(first, points, refit, costly, target=2_200, bits=10)
+    assert refined is None and used.shape == (0, 2) and tried == [(50, 10), (35, 10)]
 
 
 def test_target_psnr_refines_until_the_fit_reaches_it(scene):
