@@ -5,7 +5,9 @@ feature field: ``min_B Σ_x |Φ_B(x) − Φ_old(x)|²`` over points ``x`` (the c
 for every triangle of the new mesh, its centroid, a point near each of its corners, and for a curved triangle a
 point of its sliver, so that every row of the new bank is constrained. The features are linear in the bank
 (``dfc.field.feature_field``), so this is one sparse least-squares problem per channel and slice (``lsqr``); the
-refit then starts where the old fit ended instead of from scratch.
+refit then starts where the old fit ended instead of from scratch. The rows are clipped to the old bank's range per
+channel: every point's target interpolates the old features, so a row outside it is one the points barely constrain
+(a curve's sliver row) taking a value that would widen the quantisation range of the whole bank.
 """
 
 from __future__ import annotations
@@ -61,6 +63,8 @@ def carry_over(old, new, xy: np.ndarray) -> None:
     for s in range(target.shape[0]):
         for k in range(target.shape[2]):
             bank[s, :, k] = lsqr(A, target[s, :, k], damp=_DAMP, atol=1e-10, btol=1e-10)[0]
+    old_bank = old.field.bank.detach().double().cpu().numpy()
+    bank = np.clip(bank, old_bank.min(axis=(0, 1)), old_bank.max(axis=(0, 1)))
     with torch.no_grad():
         new.field.bank.copy_(torch.from_numpy(bank).to(new.field.bank))
         new.decoder.load_state_dict(old.decoder.state_dict())

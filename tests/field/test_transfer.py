@@ -85,3 +85,20 @@ def test_carry_over_onto_a_refined_mesh_keeps_the_features_and_the_jumps(curves)
     jump_new = _features(new, right) - _features(new, left)
     assert np.abs(jump_old).mean() > 0.05
     assert np.abs(jump_new - jump_old).mean() < 0.2 * np.abs(jump_old).mean()
+
+
+def test_carry_over_keeps_every_row_within_the_old_range(curves):
+    """A row that the points barely constrain (few points, a curve's thin sliver) would take any value the least
+    squares allow; carried rows stay within the old bank's range per channel, which sets the file's quantisation."""
+    coarse = triangulate(curves, max_triangles=120)
+    rng = np.random.default_rng(2)
+    fine = triangulate(curves, max_triangles=120, extra_points=rng.uniform(0.5, 7.5, (150, 2)))
+    old = FieldModel(FeatureField(coarse, dim=3, seed=4), ["R", "G"], hidden=8, seed=4)
+    with torch.no_grad():
+        old.field.bank.copy_(torch.from_numpy(rng.normal(0.0, 1.0, tuple(old.field.bank.shape))))  # a rough bank
+    new = FieldModel(FeatureField(fine, dim=3, seed=3), ["R", "G"], hidden=8, seed=3)
+    carry_over(old, new, rng.uniform(0, 8, (40, 2)))
+    lo, hi = old.field.bank.detach().amin(dim=(0, 1)), old.field.bank.detach().amax(dim=(0, 1))
+    bank = new.field.bank.detach()
+    assert bool(((bank >= lo - 1e-6) & (bank <= hi + 1e-6)).all())
+    assert bool(((bank - lo).abs() < 1e-6).any() | ((bank - hi).abs() < 1e-6).any())  # the range is reached: clipped
