@@ -6,8 +6,8 @@ for every triangle of the new mesh, its centroid, a point near each of its corne
 point of its sliver, so that every row of the new bank is constrained. The features are linear in the bank
 (``dfc.field.feature_field``), so this is one sparse least-squares problem per channel and slice (``lsqr``); the
 refit then starts where the old fit ended instead of from scratch. The rows are clipped to the old bank's range per
-channel: every point's target interpolates the old features, so a row outside it is one the points barely constrain
-(a curve's sliver row) taking a value that would widen the quantisation range of the whole bank.
+channel: every point's target interpolates the old features, so a row far outside it is one the points barely
+constrain (a curve's sliver row), and its value would widen the quantisation range of the whole bank.
 """
 
 from __future__ import annotations
