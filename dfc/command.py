@@ -48,23 +48,33 @@ def quiet_openmp() -> None:
 # -- threads ------------------------------------------------------------------------------------------------------
 THREADS_ENV = "DFC_THREADS"
 DEFAULT_THREADS = 1
-"""torch CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on the
+"""torch and BLAS CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on the
 2-core development machine (README, "Threads"): with idle threads sleeping, one thread is within a few per cent of
 two on the busy shared machine and 1.6× faster beside a program whose threads spin; two are up to 1.4× faster only
 on an idle machine."""
 
 
-def _set_threads(ctx, param, value):
+def set_threads(n: int) -> None:
+    """Set torch's CPU threads and those of every BLAS numpy and SciPy load (their OpenBLAS, ``threadpoolctl``) to
+    ``n``: the idle threads of either spin beside other programs (docs/cli.md, "Threads")."""
+    import scipy.sparse.linalg  # noqa: F401  (loads SciPy's BLAS, so that the limit reaches it too)
     import torch
+    from threadpoolctl import threadpool_limits
 
-    torch.set_num_threads(value)
+    torch.set_num_threads(n)
+    threadpool_limits(n, user_api="blas")
+
+
+def _set_threads(ctx, param, value):
+    set_threads(value)
     return value
 
 
 threads_option = click.option(
     "--threads", type=click.IntRange(1, 4096), default=DEFAULT_THREADS, show_default=True, envvar=THREADS_ENV,
     show_envvar=True, expose_value=False, callback=_set_threads,
-    help="CPU threads for torch. More help only on an otherwise idle machine with cores to spare.")
+    help="CPU threads for torch and for the BLAS numpy and SciPy use. More help only on an otherwise idle machine "
+         "with cores to spare.")
 """``--threads N`` (env ``DFC_THREADS``) of every command that computes: sets torch's CPU threads before it runs.
 (The entry point has already told OpenMP to sleep rather than spin while idle, ``dfc.cli.main``.)"""
 

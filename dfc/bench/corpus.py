@@ -318,9 +318,10 @@ def found_curves(pixels: np.ndarray, domain, progress: Callable[[str], None] | N
 def run_corpus(cases: list[CorpusCase], settings, *, size: int = 256, bpp=CORPUS_BPP, shared: Path | None = None,
                progress: Callable[[str], None] | None = None, default_encode: bool = True, own_rate: bool = False,
                jobs: int = 1) -> dict:
-    """``run_case`` on every case (``own_rate`` as it says), in ``jobs`` worker processes (each on one torch thread)
-    when more than one (``progress`` must then be picklable: a module-level function). Returns {case name: record} in the cases'
-    order; a case that fails to build or run ends the run (its error raised)."""
+    """``run_case`` on every case (``own_rate`` as it says), in ``jobs`` worker processes (each on one torch and BLAS
+    thread, ``dfc.command.set_threads``) when more than one (``progress`` must then be picklable: a module-level
+    function). Returns {case name: record} in the cases' order; a case that fails to build or run ends the run (its
+    error raised)."""
     progress = progress or _silent
     if jobs <= 1 or len(cases) <= 1:
         return {c.name: run_case(c, settings, size=size, bpp=bpp, shared=shared, progress=progress,
@@ -340,9 +341,9 @@ def _silent(message: str) -> None:
 
 
 def _worker(name, settings, size, bpp, shared, progress, default_encode, own_rate, number) -> dict:
-    import torch
+    from ..command import set_threads
 
-    torch.set_num_threads(1)
+    set_threads(1)
     return run_case(CASES[name], settings, size=size, bpp=bpp, shared=shared, progress=progress,
                     default_encode=default_encode, own_rate=own_rate, number=number)
 

@@ -41,16 +41,21 @@ class _BinaryStdout:
 
 # ------------------------------------------------------------------------------------------------ threads
 def test_threads_option_and_environment(monkeypatch, tmp_path, capsys):
-    before = torch.get_num_threads()
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas() -> set[int]:  # the thread counts of every BLAS loaded (numpy's and SciPy's OpenBLAS)
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    before, blas_before = torch.get_num_threads(), max(blas())
     try:
         code, _, err = run(["decode", DFIELD, "-o", tmp_path / "a.png", "--size", "8x8", "--threads", "2", "-q"],
                            capsys)
         assert code == 0, err
-        assert torch.get_num_threads() == 2
+        assert torch.get_num_threads() == 2 and blas() == {2}
         monkeypatch.setenv("DFC_THREADS", "1")
         code, _, err = run(["decode", DFIELD, "-o", tmp_path / "b.png", "--size", "8x8", "-q"], capsys)
         assert code == 0, err
-        assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 1 and blas() == {1}  # idle BLAS threads spin beside other programs
         code, _, err = run(["decode", DFIELD, "-o", tmp_path / "c.png", "--threads", "0"], capsys)
         assert_one_line_error(code, err, "--threads")
         for cmd in ("encode", "decode", "zoom", "solve", "bench"):
@@ -58,6 +63,7 @@ def test_threads_option_and_environment(monkeypatch, tmp_path, capsys):
             assert "--threads" in out and "DFC_THREADS" in out
     finally:
         torch.set_num_threads(before)
+        threadpool_limits(blas_before, user_api="blas")
 
 
 def test_entry_point_lets_openmp_threads_sleep(monkeypatch, capsys):
