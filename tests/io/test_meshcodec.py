@@ -456,7 +456,14 @@ def test_control_points_move_at_most_half_a_vertex_step(seed, bits):
     on_grid = encode_roundtripped(roundtrip_mesh(make_mesh(n_interior=30, n_curves=8, seed=seed), 22), compact=False)
     exact = decode_mesh(*on_grid, (0.0, 0.0, 64.0, 32.0))
     b = tolerance_bary_bits(exact, bits)
-    m, t = encode_mesh(exact, 22, compact=True, bary_bits=b)
+    encoded = encode_mesh(exact, 22, compact=True, bary_bits=b)
+    if encoded is None:  # encode_mesh's documented refusal: two vertices on one grid point (a random mesh can)
+        from dfc.io.meshcodec import _quantise
+
+        q = _quantise(np.asarray(exact.vertices, np.float64), exact.domain, 22)
+        assert len(np.unique(q, axis=0)) < len(q)
+        return
+    m, t = encoded
     assert mesh_info(m, t, "TOPC")["bary_bits"] == b
     out = decode_mesh(m, t, exact.domain, topology="TOPC", full_validate=False)
     half_step = 64.0 / (2**bits - 1) / 2
