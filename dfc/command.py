@@ -48,10 +48,10 @@ def quiet_openmp() -> None:
 # -- threads ------------------------------------------------------------------------------------------------------
 THREADS_ENV = "DFC_THREADS"
 DEFAULT_THREADS = 1
-"""torch and BLAS CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise. Measured on the
-2-core development machine (README, "Threads"): with idle threads sleeping, one thread is within a few per cent of
-two on the busy shared machine and 1.6× faster beside a program whose threads spin; two are up to 1.4× faster only
-on an idle machine."""
+"""torch and BLAS CPU threads of a computing command unless ``--threads`` or ``DFC_THREADS`` says otherwise.
+Measured on the 2-core development machine (README, "Threads"): with idle threads sleeping, one thread is within a
+few per cent of two on the busy shared machine and 1.6× faster beside a program whose threads spin; two are up to
+1.4× faster only on an idle machine."""
 
 
 def set_threads(n: int) -> None:
@@ -75,7 +75,8 @@ threads_option = click.option(
     show_envvar=True, expose_value=False, callback=_set_threads,
     help="CPU threads for torch and for the BLAS numpy and SciPy use. More help only on an otherwise idle machine "
          "with cores to spare.")
-"""``--threads N`` (env ``DFC_THREADS``) of every command that computes: sets torch's CPU threads before it runs.
+"""``--threads N`` (env ``DFC_THREADS``) of every command that computes: sets torch's and BLAS's CPU threads before it
+runs (``set_threads``).
 (The entry point has already told OpenMP to sleep rather than spin while idle, ``dfc.cli.main``.)"""
 
 
