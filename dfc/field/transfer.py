@@ -4,8 +4,8 @@ The new model takes the old model's decoder as it is, and a feature bank fitted 
 feature field: ``min_B Σ_x |Φ_B(x) − Φ_old(x)|²`` over points ``x`` (the caller's, e.g. every pixel centre) plus,
 for every triangle of the new mesh, its centroid, a point near each of its corners, and for a curved triangle a
 point of its sliver, so that every row of the new bank is constrained. The features are linear in the bank
-(``dfc.field.feature_field``), so this is one sparse least-squares problem per channel and slice (``lsqr``); the
-refit then starts where the old fit ended instead of from scratch. The rows are clipped to the old bank's range per
+(``dfc.field.feature_field``), so this is one sparse least-squares problem per slice, damped by ``_DAMP`` and solved
+exactly for every channel at once (a sparse LU factorisation of its normal equations); the refit then starts where the old fit ended instead of from scratch. The rows are clipped to the old bank's range per
 channel: every point's target interpolates the old features, so a row far outside it is one the points barely
 constrain (a curve's sliver row), and its value would widen the quantisation range of the whole bank.
 """
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import torch
-from scipy.sparse.linalg import lsqr
+from scipy.sparse.linalg import splu
 
 from ..geometry.bezier import evaluate
 
@@ -59,10 +59,9 @@ def carry_over(old, new, xy: np.ndarray) -> None:
     n = new.field.n_features
     A = sp.csr_matrix((w.ravel(), (np.repeat(np.arange(len(points)), idx.shape[1]), idx.ravel())),
                       shape=(len(points), n))
-    bank = np.empty((target.shape[0], n, target.shape[2]))
-    for s in range(target.shape[0]):
-        for k in range(target.shape[2]):
-            bank[s, :, k] = lsqr(A, target[s, :, k], damp=_DAMP, atol=1e-10, btol=1e-10)[0]
+    # min |A b − t|² + _DAMP² |b|²: (AᵀA + _DAMP² I) b = Aᵀ t, one factorisation for every slice and channel
+    solve = splu((A.T @ A + _DAMP ** 2 * sp.identity(n, format="csr")).tocsc()).solve
+    bank = np.stack([solve(A.T @ target[s]) for s in range(target.shape[0])])  # (S, n, K)
     old_bank = old.field.bank.detach().double().cpu().numpy()
     bank = np.clip(bank, old_bank.min(axis=(0, 1)), old_bank.max(axis=(0, 1)))
     with torch.no_grad():

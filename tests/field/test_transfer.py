@@ -102,3 +102,28 @@ def test_carry_over_keeps_every_row_within_the_old_range(curves):
     bank = new.field.bank.detach()
     assert bool(((bank >= lo - 1e-6) & (bank <= hi + 1e-6)).all())
     assert bool(((bank - lo).abs() < 1e-6).any() | ((bank - hi).abs() < 1e-6).any())  # the range is reached: clipped
+
+
+def test_carry_over_solves_the_damped_least_squares_exactly(curves):
+    """The carried bank is the minimiser of |A b − t|² + damp² |b|² (then clipped to the old range), for every
+    channel: the same as a dense solve of the stacked system."""
+    from dfc.field import transfer
+
+    coarse = triangulate(curves, max_triangles=120)
+    rng = np.random.default_rng(5)
+    fine = triangulate(curves, max_triangles=120, extra_points=rng.uniform(0.5, 7.5, (60, 2)))
+    old = _smooth_model(coarse)
+    new = FieldModel(FeatureField(fine, dim=3, seed=3), ["R", "G"], hidden=8, seed=3)
+    xy = rng.uniform(0, 8, (500, 2))
+    carry_over(old, new, xy)
+    points = np.concatenate([xy, support_points(fine)])
+    with torch.no_grad():
+        idx, w = new.field.query(torch.from_numpy(points))
+    A = np.zeros((len(points), new.field.n_features))
+    np.add.at(A, (np.repeat(np.arange(len(points)), idx.shape[1]), idx.numpy().ravel()), w.numpy().ravel())
+    stacked = np.concatenate([A, transfer._DAMP * np.eye(A.shape[1])])
+    target = np.concatenate([_features(old, points), np.zeros((A.shape[1], 3))]).astype(np.float64)
+    want = np.linalg.lstsq(stacked, target, rcond=None)[0]
+    bank = old.field.bank.detach().double().numpy()[0]
+    want = np.clip(want, bank.min(axis=0), bank.max(axis=0))
+    np.testing.assert_allclose(new.field.bank.detach().double().numpy()[0], want, rtol=0, atol=1e-5)
