@@ -206,9 +206,10 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int,
 
 
 def mesh_for_bytes(curves: Curves, settings, channels: list[str], size_of=None) -> Mesh:
-    """The largest decoder-view mesh whose file stays within ``settings.target_bytes``, by bisection on the triangle
-    cap (at most ``TARGET_BYTES_PROBES`` triangulations; files priced by ``size_of(model) -> bytes``, by default
-    with an empty header ``encoder`` record). ``TargetBytesError`` when even the mesh the curves force is too large."""
+    """The largest decoder-view mesh whose file stays within ``settings.target_bytes``, by a search on the triangle
+    cap that halves or interpolates its bracket (``_between``; at most ``TARGET_BYTES_PROBES`` triangulations; files
+    priced by ``size_of(model) -> bytes``, by default with an empty header ``encoder`` record). ``TargetBytesError``
+    when even the mesh the curves force is too large."""
     return _mesh_and_cap(curves, settings, channels, size_of)[0]
 
 
@@ -217,11 +218,12 @@ def _mesh_and_cap(curves: Curves, settings, channels: list[str], size_of) -> tup
     # ``fits`` is the largest cap known to fit the target, ``over`` the smallest known not to (too many bytes, or
     # fewer triangles than the curves force).
     fits, over, best, smallest = 0, None, None, math.inf
+    known = {}  # cap -> bytes of its file
     n = DEFAULT_TRIANGLES
     for _ in range(TARGET_BYTES_PROBES):
         try:
             size, mesh = _file_bytes(curves, settings, channels, n, size_of)
-            smallest = min(smallest, size)
+            smallest, known[n] = min(smallest, size), size
         except TriangleBudgetError:  # below the triangles the curves force: only larger caps can work
             fits, size = max(fits, n), None
         if size is not None and size <= settings.target_bytes:
@@ -230,13 +232,25 @@ def _mesh_and_cap(curves: Curves, settings, channels: list[str], size_of) -> tup
             over = n
         if over is not None and over - fits <= max(8, fits // 50):
             break
-        n = 2 * n if over is None else (fits + over) // 2
+        n = 2 * n if over is None else _between(fits, over, known, settings.target_bytes)
     if best is None:
         raise TargetBytesError(f"target of {settings.target_bytes} bytes is too small for these curves"
                                + (f": the smallest file tried takes {smallest} bytes" if smallest < math.inf else "")
                                + (f" (fewer --feature-bits than {settings.feature_bits} make smaller files)"
                                   if settings.feature_bits > FEATURE_BITS_FALLBACK[-1] else ""))
     return best
+
+
+def _between(fits: int, over: int, known: dict[int, int], target: int) -> int:
+    """The next triangle cap to try inside the bracket (``fits``, ``over``): where the line through the two files'
+    bytes (``known``: cap -> bytes, nearly linear in the cap) meets ``target``, at least an eighth of the bracket from
+    either end; the middle when ``fits`` has no file (none tried yet, or below the triangles the curves force)."""
+    if fits not in known:
+        return (fits + over) // 2
+    margin = max(1, (over - fits) // 8)
+    slope = (known[over] - known[fits]) / (over - fits)
+    guess = fits + (target - known[fits]) / slope if slope > 0 else (fits + over) / 2
+    return int(min(max(guess, fits + margin), over - margin))
 
 
 def sample_mesh_size(curves: Curves, settings, n_samples: int):

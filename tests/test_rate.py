@@ -93,6 +93,24 @@ def test_byte_targets_size_the_file_and_report_real_mesh_errors(scene, monkeypat
         rate.mesh_for_bytes(scene.curves, EncodeSettings(target_bytes=12_000, feature_bits=10), ["R", "G", "B"])
 
 
+def test_the_mesh_search_interpolates_file_sizes(monkeypatch):
+    """Files grow nearly linearly with the triangle cap: the search reaches the largest cap within its tolerance
+    that fits in about half the probes of a plain bisection (nine here)."""
+    from dfc import rate
+
+    probes = []
+
+    def linear(curves, settings, channels, n, size_of):  # a file of 500 bytes plus 4 per triangle
+        probes.append(n)
+        return 500 + 4 * n, f"mesh of {n}"
+
+    monkeypatch.setattr(rate, "_file_bytes", linear)
+    mesh, cap = rate._mesh_and_cap(None, EncodeSettings(target_bytes=4096), ["R"], None)
+    assert mesh == f"mesh of {cap}" and 500 + 4 * cap <= 4096
+    assert cap >= 899 - max(8, 899 // 50)  # 899: the largest cap that fits
+    assert len(probes) <= 5
+
+
 def test_the_decoder_narrows_to_its_share_of_a_byte_target():
     from dfc.rate import DECODER_HIDDEN, decoder_hidden
 
