@@ -128,6 +128,14 @@ def refine_rounds(settings) -> int:
     return 1 if settings.target_bytes else TARGET_PSNR_ROUNDS if settings.target_psnr is not None else 0
 
 
+def refit_steps(settings) -> int:
+    """Optimiser steps of each refit of a refinement round: ``settings.refine_steps``, else (None) the fit's own
+    steps under a byte target (its refit is the file), half of them otherwise. ``settings.steps`` is resolved."""
+    if settings.refine_steps is not None:
+        return settings.refine_steps
+    return settings.steps if settings.target_bytes else max(1, settings.steps // 2)
+
+
 def fem_settings(settings: EncodeSettings) -> EncodeSettings:
     """``settings`` of a FEM encode: aiming at ``FEM_TARGET_PSNR`` when they set no mesh size, target or ``refine``."""
     if settings.refine is None and settings.target_psnr is None and not mesh_size_set(settings):
@@ -591,7 +599,7 @@ def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mes
     from .rate import build_mesh, fill_points, refinement_points
 
     extra = np.zeros((0, 2))
-    steps = settings.refine_steps or max(1, settings.steps // 2)
+    steps = refit_steps(settings)
     chosen = settings.feature_bits  # the bits the encoder chose: the settings', or the coarse ones once switched
 
     def refit(points, bits):

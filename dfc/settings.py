@@ -72,7 +72,7 @@ class MeshSettings:
     ``dfc.rate`` 's default count. ``target_psnr`` (dB > 0, not with ``target_bytes``): refine until the file
     reaches it. ``refine``: rounds of error-driven refinement (0..16; None: one under a byte target, up to
     ``dfc.codec.TARGET_PSNR_ROUNDS`` under a PSNR target, else none), each splitting at most ``refine_fraction``
-    (0 < f ≤ 1) of the triangles and refitting for ``refine_steps`` (None: half the fit's steps)."""
+    (0 < f ≤ 1) of the triangles and refitting for ``refine_steps`` (None: ``dfc.codec.refit_steps``)."""
 
     max_triangles: int | None = None
     max_area: float | None = None

@@ -281,6 +281,18 @@ def test_fill_within_cuts_along_the_refits_and_stores_a_bit_fewer_when_no_cut_fi
     assert refined is None and used.shape == (0, 2) and tried == [(50, 10), (35, 10)]
 
 
+def test_a_byte_targets_refit_runs_as_many_steps_as_the_fit():
+    """Under a byte target the refit is the file (CHANGELOG.md, "A byte target's refit runs the fit's steps");
+    other refinement rounds refit for half the steps; ``refine_steps`` overrides both."""
+    from dfc.codec import refit_steps
+
+    assert refit_steps(EncodeSettings(steps=3000, target_bytes=4096)) == 3000
+    assert refit_steps(EncodeSettings(steps=3000, refine=2)) == 1500
+    assert refit_steps(EncodeSettings(steps=3000, target_psnr=40.0)) == 1500
+    assert refit_steps(EncodeSettings(steps=1, target_psnr=40.0)) == 1
+    assert refit_steps(EncodeSettings(steps=3000, target_bytes=4096, refine_steps=7)) == 7
+
+
 def test_target_psnr_refines_until_the_fit_reaches_it(scene):
     """A PSNR target the first fit already reaches refines nothing; one it cannot reach runs every round, each on a
     finer mesh, and the report says what the file reached."""

@@ -115,7 +115,8 @@ def _curves_arg(ctx, param, value):
               help="predicted: features predicted from their neighbours and range-coded; plain: zstd only (1.0).")
 @click.option("--refine", type=int,
               help="Image input read whole or FEM input: rounds of error-driven refinement after the fit (split the "
-                   "triangles with the largest error, refit for half the steps). Without --target-bytes each round "
+                   "triangles with the largest error, refit: for the fit's steps with --target-bytes, else half). "
+                   "Without --target-bytes each round "
                    "adds triangles, so the file grows; with it a round adds as many as the target still pays for  "
                    "[default: 1 with --target-bytes, else 0].")
 @click.option("--loss", type=click.Choice(LOSSES), default=FitSettings.loss, show_default=True,
@@ -397,12 +398,12 @@ def _fit_callback(bar):
 def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
                       quiet):
     """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
-    from ..codec import encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds
+    from ..codec import encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds, refit_steps
 
     if kind == "fem":
         settings = fem_settings(settings)
     rounds = refine_rounds(settings) if kind in REFINED else 0
-    total_steps = settings.steps + rounds * (settings.refine_steps or max(1, settings.steps // 2))
+    total_steps = settings.steps + rounds * refit_steps(settings)
     with progress_bar(total_steps, "fit", quiet) as bar:
         callback = _fit_callback(bar)
         if kind == "samples":
