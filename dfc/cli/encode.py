@@ -398,7 +398,8 @@ def _fit_callback(bar):
 def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
                       quiet):
     """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
-    from ..codec import encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds, refit_steps
+    from ..codec import (encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds,
+                         refit_steps)
 
     if kind == "fem":
         settings = fem_settings(settings)

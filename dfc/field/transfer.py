@@ -5,9 +5,10 @@ feature field: ``min_B Σ_x |Φ_B(x) − Φ_old(x)|²`` over points ``x`` (the c
 for every triangle of the new mesh, its centroid, a point near each of its corners, and for a curved triangle a
 point of its sliver, so that every row of the new bank is constrained. The features are linear in the bank
 (``dfc.field.feature_field``), so this is one sparse least-squares problem per slice, damped by ``_DAMP`` and solved
-exactly for every channel at once (a sparse LU factorisation of its normal equations); the refit then starts where the old fit ended instead of from scratch. The rows are clipped to the old bank's range per
-channel: every point's target interpolates the old features, so a row far outside it is one the points barely
-constrain (a curve's sliver row), and its value would widen the quantisation range of the whole bank.
+exactly for every channel at once (a sparse LU factorisation of its normal equations); the refit then starts where
+the old fit ended instead of from scratch. The rows are clipped to the old bank's range per channel: every point's
+target interpolates the old features, so a row far outside it is one the points barely constrain (a curve's sliver
+row), and its value would widen the quantisation range of the whole bank.
 """
 
 from __future__ import annotations
