@@ -116,9 +116,8 @@ def _curves_arg(ctx, param, value):
 @click.option("--refine", type=int,
               help="Image input read whole or FEM input: rounds of error-driven refinement after the fit (split the "
                    "triangles with the largest error, refit: for the fit's steps with --target-bytes, else half). "
-                   "Without --target-bytes each round "
-                   "adds triangles, so the file grows; with it a round adds as many as the target still pays for  "
-                   "[default: 1 with --target-bytes, else 0].")
+                   "Without --target-bytes each round adds triangles, so the file grows; with it a round adds as many "
+                   "as the target still pays for  [default: 1 with --target-bytes, else 0].")
 @click.option("--loss", type=click.Choice(LOSSES), default=FitSettings.loss, show_default=True,
               help="auto: the MSE of sign(v) log(1 + |v|) for HDR inputs (values > 1), else the MSE.")
 @click.option("--seed", type=int, default=FitSettings.seed, show_default=True,
