@@ -26,8 +26,9 @@ from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss
 from .samplers import frame_sampler, image_sampler, point_sampler
 
-__all__ = ["BATCH_SIZE", "DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_STEPS", "FitSettings", "fit", "fit_bands",
-           "fit_frames", "fit_image", "fit_samples", "fit_settings", "image_batch_size", "image_decoder_lr"]
+__all__ = ["BATCH_SIZE", "DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_LR", "IMAGE_STEPS", "FitSettings",
+           "fit", "fit_bands", "fit_frames", "fit_image", "fit_samples", "fit_settings", "image_batch_size",
+           "image_decoder_lr", "image_lr"]
 
 DECODER_LR = 0.2
 """Image fits (``fit_image``, ``fit_bands``) train the decoder at this factor on the features' learning rate
@@ -37,6 +38,18 @@ CHANGELOG.md, "The decoder learns at a fifth of the features' rate"."""
 DECODER_LR_MIN_STEPS = 500
 """Image fits of fewer steps keep the decoder at the features' rate (``image_decoder_lr``): a slow decoder needs the
 steps (CHANGELOG.md, "The decoder learns at a fifth of the features' rate")."""
+
+
+IMAGE_LR = 4e-2
+"""The features' starting learning rate in image fits (``fit_image``, ``fit_bands``) of at least
+``DECODER_LR_MIN_STEPS`` steps; shorter fits start at 1e-2. Both decay to 1e-3. Why 4e-2: CHANGELOG.md, "Image fits
+start at four times the learning rate"."""
+
+
+def image_lr(steps: int) -> float:
+    """The features' starting learning rate of an image fit of ``steps`` steps: ``IMAGE_LR`` from
+    ``DECODER_LR_MIN_STEPS`` on, else 1e-2."""
+    return IMAGE_LR if steps >= DECODER_LR_MIN_STEPS else 1e-2
 
 
 def image_decoder_lr(steps: int) -> float:
@@ -147,7 +160,7 @@ def fit_image(
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
-    lr: float = 1e-2,
+    lr: float | None = None,
     final_lr: float | None = 1e-3,
     mixed_pixels: str = "drop",
     data_range: float | None = None,
@@ -177,8 +190,8 @@ def fit_image(
     weight_bits : bits of the integer weight matrices during those steps (None: fp16, as ``MLPW`` stores them)
     callback : ``callback(step, loss, batch_psnr)`` after each step
     channels : output channel names (default: the Image's, else R, G, B[, A] / Y / c0, c1, …)
-    lr, final_lr : Adam learning rate, decayed geometrically to ``final_lr`` (None: constant); the decoder's is
-        ``image_decoder_lr(steps)`` times it
+    lr, final_lr : Adam learning rate (None: ``image_lr(steps)``), decayed geometrically to ``final_lr`` (None:
+        constant); the decoder's is ``image_decoder_lr(steps)`` times it
     mixed_pixels : {"drop", "keep"}; "drop" leaves out the pixels a discontinuity crosses
         (``edge_pixels``): their box-filtered blend of both sides would otherwise pull the field's
         values near every edge towards the blend, visible as a soft band at zoom. Ignored when it
@@ -242,8 +255,9 @@ def fit_image(
             pixels, mesh.domain, settings.batch_size, device=settings.device, query=field.query if cached else None,
             jitter_sets=max(1, min(8, MAX_CACHED_SAMPLES // n)), seed=settings.seed, exclude=exclude,
         )
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
-        weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
+    fit(model, sampler, lr=image_lr(run["steps"]) if lr is None else lr, final_lr=final_lr, seed=settings.seed,
+        callback=callback, feature_bits=feature_bits, weight_bits=weight_bits,
+        decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
 
 
@@ -304,7 +318,7 @@ def fit_bands(
     weight_bits: int | None = None,
     callback: Callable[[int, Tensor, Tensor], None] | None = None,
     channels: list[str] | None = None,
-    lr: float = 1e-2,
+    lr: float | None = None,
     final_lr: float | None = 1e-3,
     data_range: float | None = None,
     tonemap: bool | None = None,
@@ -343,8 +357,9 @@ def fit_bands(
     query = model.field.query if torch.device(device).type == "cuda" else None
     sampler = band_sampler(source, mesh.domain, local, epoch_pixels=epoch_pixels, mixed=mixed, held_out=held_out,
                            rank=rank, world=size, device=device, query=query)
-    fit(model, sampler, lr=lr, final_lr=final_lr, seed=settings.seed, callback=callback, feature_bits=feature_bits,
-        weight_bits=weight_bits, decoder_lr=image_decoder_lr(run["steps"]), **run)
+    fit(model, sampler, lr=image_lr(run["steps"]) if lr is None else lr, final_lr=final_lr, seed=settings.seed,
+        callback=callback, feature_bits=feature_bits, weight_bits=weight_bits,
+        decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
 
 

@@ -118,6 +118,18 @@ def test_image_fits_slow_the_decoder_only_when_they_are_long():
     assert image_decoder_lr(DECODER_LR_MIN_STEPS - 1) == 1.0
 
 
+@pytest.mark.parametrize("steps, lr, expected", [(500, None, "image"), (499, None, 1e-2), (500, 3e-3, 3e-3)])
+def test_image_fits_start_at_the_image_rate_when_long(scene_mesh, monkeypatch, steps, lr, expected):
+    import dfc.train.fit as fit_module
+
+    assert fit_module.DECODER_LR_MIN_STEPS == 500 and fit_module.IMAGE_LR > 1e-2
+    seen = {}
+    monkeypatch.setattr(fit_module, "fit", lambda model, sampler, **kw: seen.update(kw))
+    fit_module.fit_image(scene_image(spp=1), scene_mesh, steps=steps, lr=lr)
+    assert seen["lr"] == (fit_module.IMAGE_LR if expected == "image" else expected)
+    assert seen["steps"] == steps
+
+
 def test_fit_rejects_bad_arguments(scene_mesh):
     model = FieldModel(FeatureField(scene_mesh), ["Y"])
     sampler = image_sampler(np.zeros((4, 4, 1), np.float32), scene_mesh.domain, 4)
