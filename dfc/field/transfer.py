@@ -49,9 +49,17 @@ def _features(field, xy: np.ndarray) -> np.ndarray:
 
 def carry_over(old, new, xy: np.ndarray) -> None:
     """Give ``new`` (a ``FieldModel`` on the new mesh, same dim, slices and decoder shape) ``old``'s decoder and the
-    least-squares bank of the module docstring, fitted at ``xy`` (M, 2) and ``support_points``. ``old``'s quantised
-    mode is switched off first: its raw values are carried."""
-    old.quantization = None
+    least-squares bank of the module docstring, fitted at ``xy`` (M, 2) and ``support_points``. ``old``'s raw
+    values are carried (its quantised mode is off meanwhile and then restored: ``old`` is left as it was)."""
+    saved, old.quantization = old.quantization, None
+    try:
+        _carry(old, new, xy)
+    finally:
+        old.quantization = saved
+
+
+def _carry(old, new, xy: np.ndarray) -> None:
+    """``carry_over`` with ``old`` in float mode."""
     points = np.concatenate([np.asarray(xy, np.float64).reshape(-1, 2), support_points(new.field.mesh)])
     target = _features(old.field, points)  # (S, M, K)
     with torch.no_grad():
