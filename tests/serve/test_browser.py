@@ -112,3 +112,33 @@ def test_viewer_keeps_the_edge_sharp_at_100x(server, browser):
     target = os.environ.get("DFC_VIEWER_SCREENSHOT")
     if target:
         browser.save_screenshot(target)
+
+
+def test_showing_the_input_raster_keeps_the_zoom(server, browser):
+    """Toggling the side-by-side view resizes the dfc pane; the zoom (screen pixels per input pixel) and the centre
+    stay, whenever the browser gets to the resize (before the viewer's zoom or after it)."""
+    host, port, _ = server
+    open_at(browser, f"http://{host}:{port}/", ZOOM, EDGE)
+    settled = ("const v = window.dfcViewer.left;"
+               "return v.viewport.getContainerSize().x === v.container.clientWidth")
+    width = browser.execute_script("return window.dfcViewer.left.container.clientWidth")
+    for checked in (False, True):
+        browser.find_element("id", "compare").click()
+        assert browser.find_element("id", "compare").is_selected() == checked
+        wait_for(browser, f"return window.dfcViewer.left.container.clientWidth {'>' if not checked else '=='} {width}",
+                 30)
+        wait_for(browser, settled, 30)
+        time.sleep(0.2)  # the resize's redraw
+        assert browser.find_element("id", "zoom").text == "100×"
+        centre = browser.execute_script(
+            "const v = window.dfcViewer.left.viewport;"
+            "const p = v.viewportToImageCoordinates(v.getCenter(true)); return [p.x, p.y]")
+        grid = browser.execute_script("const [x, y] = arguments; const f = window.dfcViewer.file;"
+                                      "return [(x - f.domain[0]) * f.width / (f.domain[2] - f.domain[0]),"
+                                      " (y - f.domain[1]) * f.height / (f.domain[3] - f.domain[1])]", *EDGE)
+        assert np.allclose(centre, grid, atol=0.05 * browser.execute_script("return window.dfcViewer.file.scale"))
+    wait_for(browser, "return window.dfcViewer.fullyLoaded()")
+    views = browser.execute_script("return ['left', 'right'].map((k) => { const v = window.dfcViewer[k].viewport;"
+                                   " const c = v.getCenter(true); return [v.getZoom(true), c.x, c.y]; })")
+    assert np.allclose(views[0], views[1], rtol=1e-6, atol=1e-9)  # the raster's viewer, opened again, follows
+

@@ -13,6 +13,7 @@
     return {
       id, prefixUrl: "/static/images/", drawer: "canvas", showNavigator: false, showRotationControl: false,
       maxZoomPixelRatio: 4, minZoomImageRatio: 0.5, visibilityRatio: 0.1, animationTime: 0.5,
+      preserveImageSizeOnResize: true,  // showing or hiding the input raster halves or doubles a pane: keep the zoom
       gestureSettingsMouse: { clickToZoom: false },
     };
   }
@@ -98,17 +99,15 @@
     }).catch(() => {}).finally(() => { busy = false; next(); });
   }
 
-  function lock(a, b) {  // each viewer follows the other's viewport
-    let syncing = false;
-    const follow = (src, dst) => () => {
-      if (syncing) return;
-      syncing = true;
-      dst.viewport.zoomTo(src.viewport.getZoom(), null, true);
-      dst.viewport.panTo(src.viewport.getCenter(), true);
-      syncing = false;
-    };
-    a.addHandler("viewport-change", follow(a, b));
-    b.addHandler("viewport-change", follow(b, a));
+  // the input raster's viewer (state.right, while shown) and the file's (state.left) show the same view: each
+  // follows the other's viewport (the panes are equally wide)
+  let syncing = false;
+  function follow(src, dst) {
+    if (syncing || !src || !dst) return;
+    syncing = true;
+    dst.viewport.zoomTo(src.viewport.getZoom(), null, true);
+    dst.viewport.panTo(src.viewport.getCenter(), true);
+    syncing = false;
   }
 
   function showCompare(on) {
@@ -116,14 +115,13 @@
     byId("rightpane").hidden = !on;
     if (on && !state.right) {
       byId("righttitle").textContent = `${file.compare.name} (input raster, bicubic)`;
-      state.right = OpenSeadragon(options("right"));
-      state.right.open(file.compare.info);
-      state.right.addHandler("open", () => {
-        state.right.viewport.zoomTo(state.left.viewport.getZoom(), null, true);
-        state.right.viewport.panTo(state.left.viewport.getCenter(), true);
-      });
-      lock(state.left, state.right);
-      state.right.element.addEventListener("mousemove", (e) => readout(e, state.right));
+      const right = state.right = OpenSeadragon(options("right"));
+      right.addHandler("open", () => follow(state.left, right));
+      right.addHandler("viewport-change", () => follow(right, state.left));
+      right.open(file.compare.info);
+    } else if (!on && state.right) {  // a hidden viewer has no size to follow: closed, and opened again when shown
+      state.right.destroy();
+      state.right = null;
     }
     setTimeout(update, 0);
   }
@@ -151,7 +149,9 @@
     state.left = OpenSeadragon(options("left"));
     state.left.open(file.info);
     for (const name of ["animation", "update-viewport", "resize", "open"]) state.left.addHandler(name, update);
+    state.left.addHandler("viewport-change", () => follow(state.left, state.right));
     state.left.element.addEventListener("mousemove", (e) => readout(e, state.left));
+    byId("right").addEventListener("mousemove", (e) => { if (state.right) readout(e, state.right); });
     fetch(`/api/curves/${encodeURIComponent(file.id)}`).then((r) => r.json()).then((c) => { state.curves = c; update(); });
     byId("curves").addEventListener("change", update);
     const compare = byId("compare");
