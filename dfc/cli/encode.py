@@ -6,6 +6,7 @@ import contextlib
 import functools
 import os
 import sys
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -239,6 +240,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
                                                              settings.batch_size))
         used = None
+        clock = time.perf_counter()
         if curves_path == "auto":
             curves, used, curves_info = _auto_curves(signal, settings.pixel_filter)
         else:
@@ -252,6 +254,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             if curves_info is not None:
                 curves_info = {**curves_info, **({"pruned": pruned.to_dict()} if pruned else {}),
                                **({"refined": refined.to_dict()} if refined else {})}
+        curves_s = time.perf_counter() - clock
         input_bytes = sum(os.path.getsize(p) for p in paths)
         if out_of_core:
             # read band by band while the input (or its spooled copy) is there
@@ -265,6 +268,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             reference = _read_reference(reference_path, curves.domain) if reference_path else None
             blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
                                              reference, curves_info, quiet)
+    if curves_path == "auto" or prune or refine:  # the time line counts finding and readying the curves too
+        report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
     if blob is None:  # --workers: rank 0 wrote the file
         pass
     elif output == "-":

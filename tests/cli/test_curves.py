@@ -2,6 +2,7 @@
 one error line and no output file."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -164,6 +165,7 @@ def test_encode_with_auto_curves_refines_them_by_default(disc_exr, tmp_path, cap
     assert code == 0, err
     assert "curves refined against the pixels" in stdout
     assert file_stats(out)["encoder"]["curves"]["refined"]["pixels"] > 50
+    assert re.search(r"^time: curves \d+\.\d s, detect", stdout, re.M)  # finding and refining them is timed too
     code, stdout, err = run([*args, "--no-refine-curves"], capsys)
     assert code == 0 and "refined" not in stdout and "refined" not in file_stats(out)["encoder"]["curves"]
 

@@ -434,13 +434,13 @@ def _loss(data: dict, offsets, weights, soft: float):
         p = torch.einsum("nk,nkd->nd", basis[part], c)
         d1 = torch.einsum("nk,nkd->nd", dbasis[part], c)
         d2 = torch.einsum("nk,nkd->nd", ddbasis[part], c)
-        speed = torch.sqrt((d1 * d1).sum(dim=1)).clamp_min(1e-9)
+        speed = torch.sqrt(d1[:, 0] ** 2 + d1[:, 1] ** 2).clamp_min(1e-9)
         tan = d1 / speed[:, None]
         normal = torch.stack([-tan[:, 1], tan[:, 0]], dim=1)
         kappa = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / speed**3
-        q = (centre[part] - p)[:, None, :] + offsets[None]  # (n, K, 2)
-        along = (q * tan[:, None, :]).sum(dim=2)
-        across = (q * normal[:, None, :]).sum(dim=2)
+        r = centre[part] - p  # the pixel centre from the curve point; its filter points are r + offsets
+        along = (r[:, 0] * tan[:, 0] + r[:, 1] * tan[:, 1])[:, None] + tan @ offsets.T  # (n, K)
+        across = (r[:, 0] * normal[:, 0] + r[:, 1] * normal[:, 1])[:, None] + normal @ offsets.T
         signed = across - 0.5 * kappa[:, None] * along * along
         on_a = torch.sigmoid(signed / soft) * weights  # (N, K)
         predicted = (base[part] + on_a.sum(dim=1)[:, None] * jump[part]
