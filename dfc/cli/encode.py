@@ -241,19 +241,25 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
                                                              settings.batch_size))
         used = None
         clock = time.perf_counter()
-        if curves_path == "auto":
-            curves, used, curves_info = _auto_curves(signal, settings.pixel_filter)
-        else:
+        if curves_path != "auto":
             curves = read_curves_checked(curves_path, quiet)
         pruned = refined = None
         prune = prune_curves or (prune_curves is None and curves_path == "auto" and not out_of_core)
         refine = refine_curves or (refine_curves is None and curves_path == "auto" and not out_of_core)
-        if prune or refine:
-            curves, pruned, refined = _ready_curves(signal, curves, settings, used, prune, refine,
-                                                    fit_curves_to_image, quiet)
-            if curves_info is not None:
-                curves_info = {**curves_info, **({"pruned": pruned.to_dict()} if pruned else {}),
-                               **({"refined": refined.to_dict()} if refined else {})}
+        worked = curves_path == "auto" or prune or refine  # the curves are found, pruned or refined here
+        with progress_bar(None, "curves", quiet or not worked, unit="stage") as bar:
+            if curves_path == "auto":
+                bar.set_description_str("finding the curves")
+                curves, used, curves_info = _auto_curves(signal, settings.pixel_filter)
+            if prune or refine:
+                bar.set_description_str(" and ".join(["pruning"] * prune + ["refining"] * refine) + " the curves")
+                curves, pruned, refined = _ready_curves(signal, curves, settings, used, prune, refine,
+                                                        fit_curves_to_image)
+        if refined is not None and refined.warning and not quiet:
+            click.echo(f"dfc: warning: {refined.warning}", err=True)
+        if curves_info is not None:
+            curves_info = {**curves_info, **({"pruned": pruned.to_dict()} if pruned else {}),
+                           **({"refined": refined.to_dict()} if refined else {})}
         curves_s = time.perf_counter() - clock
         input_bytes = sum(os.path.getsize(p) for p in paths)
         if out_of_core:
@@ -268,7 +274,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             reference = _read_reference(reference_path, curves.domain) if reference_path else None
             blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
                                              reference, curves_info, quiet)
-    if curves_path == "auto" or prune or refine:  # the time line counts finding and readying the curves too
+    if worked:  # the time line counts finding, pruning and refining the curves too
         report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
     if blob is None:  # --workers: rank 0 wrote the file
         pass
@@ -327,13 +333,13 @@ def _auto_curves(image, pixel_filter: str = "auto"):
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
 
 
-def _ready_curves(image, curves, settings, used, prune: bool, refine: bool, fit_curves_to_image: bool, quiet: bool):
+def _ready_curves(image, curves, settings, used, prune: bool, refine: bool, fit_curves_to_image: bool):
     """(curves, ``Pruned`` or None, ``Refined`` or None) of ``--prune-curves`` and ``--refine-curves``
     (``dfc.geometry.sources.auto.ready_curves``): ``curves`` on the image's domain (as the encoder takes them:
     ``dfc.codec.check_domain``) less those that do not earn their bytes for a mesh of ``settings.max_triangles``
     (default size when None) in a file of ``settings.target_bytes``, then refined against the pixels through ``used``
     (the extractor's filter) or the filter of ``settings.pixel_filter`` ("auto": detected along the curves, as the
-    encoder does); a warning line when the refinement left them as given."""
+    encoder does)."""
     from ..codec import check_domain
     from ..geometry.sources.auto import ready_curves
 
@@ -341,8 +347,6 @@ def _ready_curves(image, curves, settings, used, prune: bool, refine: bool, fit_
     curves, pruned, refined = ready_curves(image.pixels, curves, prune=prune, refine=refine,
                                            n_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
                                            pixel_filter=used or settings.pixel_filter)
-    if refined is not None and refined.warning and not quiet:
-        click.echo(f"dfc: warning: {refined.warning}", err=True)
     return curves, pruned, refined
 
 

@@ -170,6 +170,22 @@ def test_encode_with_auto_curves_refines_them_by_default(disc_exr, tmp_path, cap
     assert code == 0 and "refined" not in stdout and "refined" not in file_stats(out)["encoder"]["curves"]
 
 
+def test_encode_warns_once_when_refinement_leaves_crossing_curves(disc_exr, tmp_path, capsys):
+    """A curve crossing the disc's edge where they share no point: the encode refines the rest, says so in one warning
+    line (after the curves' progress, not inside it) and writes the file."""
+    found, crossing, out = tmp_path / "found.json", tmp_path / "crossing.json", tmp_path / "disc.dfield"
+    assert run(["curves", disc_exr, "-o", found, "-q"], capsys)[0] == 0
+    doc = json.loads(found.read_text())
+    doc["curves"].append({"name": "bar", "pieces": [{"type": "line", "points": [[4.0, 19.0], [20.0, 21.0]]}]})
+    crossing.write_text(json.dumps(doc))
+    code, stdout, err = run(["encode", disc_exr, "--curves", crossing, "--refine-curves", "-o", out, "--steps", "2",
+                             "--batch-size", "256"], capsys)
+    assert code == 0 and out.exists(), err
+    warnings = [line for line in err.splitlines() if line.startswith("dfc: warning:")]
+    assert len(warnings) == 1 and "'bar'" in warnings[0] and "left those pieces as given" in warnings[0]
+    assert "crossing pieces left as given" in stdout
+
+
 @pytest.mark.parametrize("kind", ["samples", "fem", "frames", "outside"])
 def test_refine_curves_bad_input_is_one_error_line(kind, disc_exr, tmp_path, capsys):
     """--refine-curves on a sample set, FEM or frames input, or with curves reaching outside the image: one line."""
