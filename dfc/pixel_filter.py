@@ -44,6 +44,9 @@ DECODE_POINTS = 256
 ``dfc.render.EDGE_SPP`` points, as decodes without a stored filter do."""
 _TABLE = 4097
 """Samples of a kernel's cumulative table over its support."""
+AXIS_SEGMENTS, AXIS_NODES = 8, 8
+"""Composite Gauss–Legendre quadrature of one axis (``PixelFilter.axis_nodes``): segments of the support, points
+on each."""
 
 
 @dataclass(frozen=True)
@@ -135,6 +138,33 @@ class PixelFilter:
         sign[sign == 0] = 1.0
         w = sign * (scale * scale / count)
         return off, w / w.sum(axis=-1, keepdims=True)
+
+    def cdf(self, u: np.ndarray) -> np.ndarray:
+        """The kernel's normalised cumulative ``∫_{−r}^{u} k / ∫ k`` at ``u`` px (any shape): 0 below the support, 1
+        above it (signed: it dips where ``k`` is negative)."""
+        grid, table = self._signed_table()
+        return np.interp(u, grid, table)
+
+    @functools.lru_cache(maxsize=8)  # noqa: B019 (frozen dataclass: hashable, few instances)
+    def axis_nodes(self) -> tuple[np.ndarray, np.ndarray]:
+        """Quadrature of one axis of a continuous kernel: (offsets (M,) px, weights (M,) summing to 1) of composite
+        Gauss–Legendre, ``AXIS_NODES`` points on each of ``AXIS_SEGMENTS`` equal segments of the support, weighted
+        by the kernel (the segments' ends fall on the kinks of every kernel of ``FILTERS``)."""
+        r = self.radius
+        x, w = np.polynomial.legendre.leggauss(AXIS_NODES)
+        ends = np.linspace(-r, r, AXIS_SEGMENTS + 1)
+        half = 0.5 * (ends[1:] - ends[:-1])
+        offsets = ((ends[:-1] + half)[:, None] + half[:, None] * x[None]).ravel()
+        weights = (half[:, None] * w[None]).ravel() * self.kernel(offsets)
+        return offsets, weights / weights.sum()
+
+    @functools.lru_cache(maxsize=8)  # noqa: B019 (frozen dataclass: hashable, few instances)
+    def _signed_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """(u (T,), cumulative k normalised to end at 1 (T,)) over the support."""
+        u = np.linspace(-self.radius, self.radius, _TABLE)
+        k = self.kernel(u)
+        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (k[1:] + k[:-1]) * np.diff(u))])
+        return u, cdf / cdf[-1]
 
     @functools.lru_cache(maxsize=8)  # noqa: B019 (frozen dataclass: hashable, few instances)
     def _table(self) -> tuple[np.ndarray, np.ndarray, float]:

@@ -44,7 +44,7 @@ FALLBACK = "box"
 SPACING = 0.05
 """Curves are sampled every this many px to find each pixel's foot point."""
 _POINTS = 4096
-"""Quadrature points of a candidate's step share ``S`` (exact sub-samples for ``box:N``)."""
+"""Sub-samples of a ``box:N`` candidate's step share ``S`` (all of them: N ≤ 64)."""
 
 
 @dataclass
@@ -98,13 +98,28 @@ def detect(pixels: np.ndarray, curves, candidates=CANDIDATES) -> Detection:
 
 def step_share(f: PixelFilter, d: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """(N,) share of filter ``f`` on the positive side of straight edges at signed distances ``d`` (N,) px from
-    the pixels' centres (the centre lies on the positive side for d > 0), unit normals ``normal`` (N, 2)."""
-    offsets, weights = f.nodes(_POINTS)
-    out = np.empty(len(d))
-    for s in range(0, len(d), 2048):
-        along = normal[s:s + 2048] @ offsets.T  # (n, K)
-        out[s:s + 2048] = ((along + d[s:s + 2048, None]) > 0).astype(np.float64) @ weights
-    return out
+    the pixels' centres (the centre lies on the positive side for d > 0), unit normals ``normal`` (N, 2).
+
+    ``point`` and ``box:N`` sum their sub-samples exactly. The continuous kernels integrate one axis by quadrature
+    (``PixelFilter.axis_nodes``) and the other exactly (``PixelFilter.cdf``): with ``|n_y| ≥ |n_x|`` (the axes
+    swapped otherwise, ``n`` negated so ``n_y > 0``: the kernel is even and the same on both axes), the point
+    ``(x, y)`` lies on the positive side when ``y > −(d + n_x x) / n_y``."""
+    d = np.asarray(d, dtype=np.float64)
+    normal = np.asarray(normal, dtype=np.float64)
+    if f.name == "point" or (f.name == "box" and f.param is not None):
+        offsets, weights = f.nodes(_POINTS)
+        out = np.empty(len(d))
+        for s in range(0, len(d), 2048):
+            along = normal[s:s + 2048] @ offsets.T  # (n, K)
+            out[s:s + 2048] = ((along + d[s:s + 2048, None]) > 0).astype(np.float64) @ weights
+        return out
+    swap = np.abs(normal[:, 0]) > np.abs(normal[:, 1])
+    nx, ny = np.where(swap, normal[:, 1], normal[:, 0]), np.where(swap, normal[:, 0], normal[:, 1])
+    flip = np.where(ny < 0, -1.0, 1.0)
+    nx, ny = nx * flip, ny * flip
+    x, w = f.axis_nodes()
+    below = f.cdf(-(d[:, None] + nx[:, None] * x[None]) / ny[:, None])  # (N, M) share of y under the edge
+    return (1.0 - below) @ w
 
 
 def _curve_samples(curves, scale: np.ndarray, origin: np.ndarray):

@@ -3,7 +3,7 @@ scene over its square), as a renderer with a box pixel filter or a camera sensor
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from dfc.errors import InputError
@@ -52,6 +52,7 @@ def test_half_plane_helper_is_exact():
 
 @settings(max_examples=6, deadline=None)
 @given(angle=st.floats(0.0, 2 * np.pi), dx=st.floats(0.0, 1.0), dy=st.floats(0.0, 1.0))
+@example(angle=5.5078125, dx=0.0, dy=0.5)  # a diagonal end 4.5 px from both borders: 6.4 px from the corner
 def test_straight_step_found_within_two_hundredths_of_a_pixel(angle, dx, dy):
     centre = (24.0 + dx, 24.0 + dy)
     image = 0.2 + 0.6 * half_plane(48, 48, angle, 0.0, centre)

@@ -282,17 +282,20 @@ def _end(points: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _ray_hit(origin, direction, fits, own: int, side: int, reach: float, domain):
     """Nearest crossing (within ``reach``) of the ray ``origin + s direction``, s > 0, with another chain's
-    curve (or this chain's pieces other than the one at this end) or the domain border.
-    Returns (point (2,), target chain index or -1 for the border) or None."""
-    best, target = reach, None
+    curve (or this chain's pieces other than the one at this end) or the domain border. The border counts within
+    ``reach`` px of it (across it: the band the sub-pixel fits cannot see is as wide on a slant), at most
+    ``√2 · reach`` along the ray. Returns (point (2,), target chain index or -1 for the border) or None."""
+    best, target = np.sqrt(2.0) * reach, None
     x0, y0, x1, y1 = domain
     with np.errstate(divide="ignore", invalid="ignore"):
         for k, bound in ((0, x0), (0, x1), (1, y0), (1, y1)):
             t = (bound - origin[k]) / direction[k]
-            if 0 < t <= best:
+            if 0 < t <= best and abs(bound - origin[k]) <= reach:
                 best, target = t, -1
+    if target is None:
+        best = reach
     normal = np.array([-direction[1], direction[0]])
-    box = np.r_[origin - reach, origin + reach]
+    box = np.r_[origin - best, origin + best]
     for c, (_, cp) in enumerate(fits):
         if c == own:
             cp = cp[1:] if side == 0 else cp[:-1]

@@ -14,8 +14,10 @@ The share is differentiable in the control points: each pixel's filter is a fixe
 points of ``PixelFilter.nodes``), each point's signed distance to the curve is taken from the osculating parabola
 at the pixel's foot point (parameter held fixed within a round and found again between rounds: the distance's
 derivative in the parameter vanishes there), and the side test is a logistic of width ``SOFT`` px (annealed,
-``SOFT_DISCRETE``, for filters of a few sub-samples: ``point`` and ``box:N``, whose pixels change in steps). Only clean pixels count: the curve within the filter's
-reach of the pixel follows that parabola within ``STRAIGHT`` px (no junction, corner or second curve), the side
+``SOFT_DISCRETE``, for filters of a few sub-samples: ``point`` and ``box:N``, whose pixels change in steps). An
+isotropic Gaussian needs no side test: across the curve its share is the normal distribution's tail, exact, and
+only the points along the curve are a quadrature (``GAUSS_HERMITE``). Only clean pixels count: the curve within the
+filter's reach of the pixel follows that parabola within ``STRAIGHT`` px (no junction, corner or second curve), the side
 readings are clear of every other curve and inside the image, and the jump is at least ``MIN_JUMP`` of the
 image's range.
 
@@ -48,7 +50,10 @@ ROUNDS = 4
 STEPS = 30
 """L-BFGS iterations per round."""
 QUAD_POINTS = 512
-"""Quadrature points per pixel filter (``box:N`` uses its N × N sub-samples exactly)."""
+"""Quadrature points per pixel filter (``box:N`` uses its N × N sub-samples exactly; a Gaussian takes
+``GAUSS_HERMITE``)."""
+GAUSS_HERMITE = 8
+"""Points along the curve of a Gaussian filter's quadrature (across the curve it is integrated exactly)."""
 SOFT = 0.02
 """Width (px) of the logistic side test of a mixing filter."""
 SOFT_DISCRETE = (0.1, 0.05, 0.02, 0.01)
@@ -141,21 +146,20 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     if params.frozen.all():
         return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, _crossing_warning(curves, crossed, "them"))
     reach = _reach(f)
-    offsets, weights = f.nodes(QUAD_POINTS)
-    offsets_t, weights_t = torch.from_numpy(offsets), torch.from_numpy(weights)
-    discrete = len(weights) < QUAD_POINTS
+    points = GAUSS_HERMITE if f.name == "gaussian" else len(f.nodes(QUAD_POINTS)[1])
+    discrete = points < QUAD_POINTS and f.name != "gaussian"
     cp, data = start, None
     for k in range(max(1, rounds)):
         data = _pixel_data(pixels, cp, reach) or data
         if data is None:
             return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0)
         soft = SOFT_DISCRETE[min(k, len(SOFT_DISCRETE) - 1)] if discrete else SOFT
-        loss_of = _loss(data, offsets_t, weights_t, soft)
+        loss_of = _loss(data, f, soft)
         x = torch.from_numpy(params.pack(cp)).requires_grad_(True)
         x_start = torch.from_numpy(params.pack(start))
         opt = torch.optim.LBFGS([x], lr=1.0, max_iter=STEPS, line_search_fn="strong_wolfe", tolerance_grad=1e-12,
                                 tolerance_change=1e-15)
-        chunk = max(1, CHUNK // len(weights))
+        chunk = max(1, CHUNK // points)
         parts = [slice(i, i + chunk) for i in range(0, len(data["piece"]), chunk)]
 
         def closure():
@@ -414,8 +418,9 @@ def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None
             "scale": 1.0 / np.sqrt(size2[ok])}
 
 
-def _loss(data: dict, offsets, weights, soft: float):
-    """The function control points (P, 4, 2) torch → summed squared share misfit over ``data``'s pixels."""
+def _loss(data: dict, f, soft: float):
+    """The function control points (P, 4, 2) torch → summed squared share misfit over ``data``'s pixels, seen
+    through the filter ``f`` (module notes; ``_gaussian_side`` for a Gaussian)."""
     import torch
 
     centre = torch.from_numpy(data["centre"])
@@ -423,7 +428,14 @@ def _loss(data: dict, offsets, weights, soft: float):
     t = torch.from_numpy(data["t"])[:, None]
     value, side_b, grad_b = (torch.from_numpy(data[k]) for k in ("value", "side_b", "grad_b"))
     jump, grad_jump, scale = (torch.from_numpy(data[k]) for k in ("jump", "grad_jump", "scale"))
-    base = side_b + torch.einsum("ncx,kx,k->nc", grad_b, offsets, weights)  # side B's mean over the filter
+    gaussian = f.name == "gaussian"
+    if gaussian:  # an even filter: side B's plane averages to its centre value
+        nodes, weights = np.polynomial.hermite_e.hermegauss(GAUSS_HERMITE)
+        nodes, weights = torch.from_numpy(f.param * nodes), torch.from_numpy(weights / weights.sum())
+        base = side_b
+    else:
+        offsets, weights = (torch.from_numpy(a) for a in f.nodes(QUAD_POINTS))
+        base = side_b + torch.einsum("ncx,kx,k->nc", grad_b, offsets, weights)  # side B's mean over the filter
     s = 1.0 - t
     basis = torch.cat([s**3, 3 * s * s * t, 3 * s * t * t, t**3], dim=1)  # (N, 4)
     dbasis = torch.cat([-3 * s * s, 3 * s * s - 6 * s * t, 6 * s * t - 3 * t * t, 3 * t * t], dim=1)
@@ -438,16 +450,36 @@ def _loss(data: dict, offsets, weights, soft: float):
         tan = d1 / speed[:, None]
         normal = torch.stack([-tan[:, 1], tan[:, 0]], dim=1)
         kappa = (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / speed**3
-        r = centre[part] - p  # the pixel centre from the curve point; its filter points are r + offsets
-        along = (r[:, 0] * tan[:, 0] + r[:, 1] * tan[:, 1])[:, None] + tan @ offsets.T  # (n, K)
-        across = (r[:, 0] * normal[:, 0] + r[:, 1] * normal[:, 1])[:, None] + normal @ offsets.T
-        signed = across - 0.5 * kappa[:, None] * along * along
-        on_a = torch.sigmoid(signed / soft) * weights  # (N, K)
-        predicted = (base[part] + on_a.sum(dim=1)[:, None] * jump[part]
-                     + torch.einsum("ncx,nx->nc", grad_jump[part], on_a @ offsets))
+        r = centre[part] - p  # the pixel centre from the curve point
+        along0 = (r[:, 0] * tan[:, 0] + r[:, 1] * tan[:, 1])[:, None]
+        across0 = (r[:, 0] * normal[:, 0] + r[:, 1] * normal[:, 1])[:, None]
+        if gaussian:
+            share, moment = _gaussian_side(along0, across0, kappa[:, None], nodes, weights, f.param)
+            moment = tan * moment[:, :1] + normal * moment[:, 1:]
+        else:  # the filter's points are r + offsets: a logistic side test of each
+            along = along0 + tan @ offsets.T  # (n, K)
+            signed = across0 + normal @ offsets.T - 0.5 * kappa[:, None] * along * along
+            on_a = torch.sigmoid(signed / soft) * weights
+            share, moment = on_a.sum(dim=1), on_a @ offsets
+        predicted = (base[part] + share[:, None] * jump[part] + torch.einsum("ncx,nx->nc", grad_jump[part], moment))
         return (((predicted - value[part]) * scale[part, None]) ** 2).sum()
 
     return loss
+
+
+def _gaussian_side(along, across, kappa, nodes, weights, sigma: float):
+    """(share (n,), moment (n, 2)) of an isotropic Gaussian filter of σ ``sigma`` px on side A of the parabola
+    ``across' = κ/2 · along'²`` through the foot point, for pixel centres at ``along``, ``across`` (n, 1) px from
+    it: the filter's points along the curve by Gauss–Hermite ``nodes``, ``weights`` (G,), across it exactly (the
+    normal distribution's tail and its first moment). ``moment`` is ``E[offset · on A]`` in (along, across)
+    coordinates. Mitsuba's Gaussian is cut at 4σ, which this ignores (a share off by < 3e-4)."""
+    import torch
+
+    a = along + nodes  # (n, G) points along the curve
+    z = (0.5 * kappa * a * a - across) / sigma  # the filter's points across the curve lie on A above z·σ
+    tail = torch.special.ndtr(-z) * weights
+    density = torch.exp(-0.5 * z * z) * (sigma / np.sqrt(2.0 * np.pi)) * weights  # E[v · 1{v > zσ}] per node
+    return tail.sum(dim=1), torch.stack([tail @ nodes, density.sum(dim=1)], dim=1)
 
 
 def _total(loss_of, cp: np.ndarray, data: dict) -> float:
