@@ -281,10 +281,12 @@ def _end(points: np.ndarray, side: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _ray_hit(origin, direction, fits, own: int, side: int, reach: float, domain):
-    """Nearest crossing (within ``reach``) of the ray ``origin + s direction``, s > 0, with another chain's
-    curve (or this chain's pieces other than the one at this end) or the domain border. The border counts within
-    ``reach`` px of it (across it: the band the sub-pixel fits cannot see is as wide on a slant), at most
-    ``√2 · reach`` along the ray. Returns (point (2,), target chain index or -1 for the border) or None."""
+    """Nearest crossing of the ray ``origin + s direction``, s > 0, with another chain's curve (or this chain's
+    pieces other than the one at this end) or the domain border. The border counts when ``origin`` lies within
+    ``reach`` px of it, measured across it (the band the sub-pixel fits cannot see is as wide on a slant), and at
+    most ``√2 · reach`` along the ray; a curve counts within ``reach`` along the ray, or before the border the ray
+    reaches (the end would cross it on its way). Returns (point (2,), target chain index or -1 for the border) or
+    None."""
     best, target = np.sqrt(2.0) * reach, None
     x0, y0, x1, y1 = domain
     with np.errstate(divide="ignore", invalid="ignore"):
