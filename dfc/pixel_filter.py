@@ -132,7 +132,7 @@ class PixelFilter:
         p = lattice(count)
         if shift is not None:
             p = np.mod(p + np.asarray(shift)[..., None, :], 1.0)
-        u_table, cdf, scale = self._table()
+        u_table, cdf, scale, _ = self._table()
         off = np.interp(p, cdf, u_table)
         sign = np.sign(self.kernel(off)).prod(axis=-1)
         sign[sign == 0] = 1.0
@@ -142,7 +142,7 @@ class PixelFilter:
     def cdf(self, u: np.ndarray) -> np.ndarray:
         """The kernel's normalised cumulative ``∫_{−r}^{u} k / ∫ k`` at ``u`` px (any shape): 0 below the support, 1
         above it (signed: it dips where ``k`` is negative)."""
-        grid, table = self._signed_table()
+        grid, _, _, table = self._table()
         return np.interp(u, grid, table)
 
     @functools.lru_cache(maxsize=8)  # noqa: B019 (frozen dataclass: hashable, few instances)
@@ -159,24 +159,16 @@ class PixelFilter:
         return offsets, weights / weights.sum()
 
     @functools.lru_cache(maxsize=8)  # noqa: B019 (frozen dataclass: hashable, few instances)
-    def _signed_table(self) -> tuple[np.ndarray, np.ndarray]:
-        """(u (T,), cumulative k normalised to end at 1 (T,)) over the support."""
+    def _table(self) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+        """(u (T,), cumulative |k| normalised to 0..1 (T,), ∫|k| / ∫k, cumulative k normalised to end at 1 (T,))
+        over the support, by trapezoids."""
         u = np.linspace(-self.radius, self.radius, _TABLE)
-        k = self.kernel(u)
-        cdf = np.concatenate([[0.0], np.cumsum(0.5 * (k[1:] + k[:-1]) * np.diff(u))])
-        return u, cdf / cdf[-1]
-
-    @functools.lru_cache(maxsize=8)  # noqa: B019 (frozen dataclass: hashable, few instances)
-    def _table(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """(u (T,), cumulative |k| normalised to 0..1 (T,), ∫|k| / ∫k) over the support."""
-        r = self.radius
-        u = np.linspace(-r, r, _TABLE)
         k = self.kernel(u)
         a = np.abs(k)
         cdf = np.concatenate([[0.0], np.cumsum(0.5 * (a[1:] + a[:-1]) * np.diff(u))])
-        total = cdf[-1]
-        signed = float(np.sum(0.5 * (k[1:] + k[:-1]) * np.diff(u)))
-        return u, cdf / total, total / signed
+        pieces = 0.5 * (k[1:] + k[:-1]) * np.diff(u)
+        signed = np.concatenate([[0.0], np.cumsum(pieces)])
+        return u, cdf / cdf[-1], cdf[-1] / float(np.sum(pieces)), signed / signed[-1]
 
     def taps(self, offsets: np.ndarray) -> np.ndarray:
         """Normalised 1D weights of the kernel at ``offsets`` (px) from the centre (sum 1): a separable
