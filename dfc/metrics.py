@@ -19,7 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HDR_PEAK_RATIO", "QualityScale", "data_range", "is_hdr", "mse", "psnr", "quality_scale", "tonemap"]
+__all__ = ["HDR_PEAK_RATIO", "QualityScale", "data_range", "is_hdr", "measure_space", "mse", "psnr", "quality_scale",
+           "tonemap"]
 
 HDR_PEAK_RATIO = 8.0
 """Colours are HDR light when their peak is above 1 and at least this many times their mean (three stops): the
@@ -103,6 +104,19 @@ def is_hdr(values=None, *, lo: float | None = None, hi: float | None = None, mea
         v = np.asarray(values)
         hi, mean = float(v.max()), float(v.mean(dtype=np.float64))
     return hi > 1.0 and hi >= HDR_PEAK_RATIO * max(mean, 0.0)
+
+
+def measure_space(values, like=None) -> np.ndarray:
+    """float64 ``values`` (any shape) in the space a colour image's PSNR is measured in, decided by the image
+    ``like`` (default ``values``): HDR light (``is_hdr(like)``) tone-mapped, ``sign(x) |x| / (1 + |x|)``; other
+    values over ``like``'s range, ``(x − min) / span`` (0 where the span is 0). A step's size there, as a share of
+    that range, says whether it shows, whatever the unit or the brightest highlight."""
+    v = np.asarray(values, dtype=np.float64)
+    ref = v if like is None else np.asarray(like)
+    if is_hdr(ref):
+        return np.sign(v) * np.abs(v) / (1.0 + np.abs(v))
+    lo, hi = float(ref.min()), float(ref.max())
+    return (v - lo) / (hi - lo) if hi > lo else np.zeros_like(v)
 
 
 def tonemap(values):

@@ -8,7 +8,8 @@ curve (bilinear), beyond every candidate's reach, and extrapolated linearly to t
 curve cancels). Each candidate (``CANDIDATES``) predicts every pixel within ``PROFILE_REACH`` px of a curve; the one
 with the smallest RMS misfit, as a share of the jump, wins. Only clean profiles count: the curve straight within
 ``STRAIGHT`` px over ``SIDE_FAR`` px around the pixel, no other curve near the side samples, a jump of at least
-``MIN_JUMP`` of the image's range.
+``MIN_JUMP`` of the image's range where its PSNR is measured (``dfc.metrics.measure_space``: tone-mapped for HDR
+light, so an emitter in view does not make every other edge too small to count).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .metrics import measure_space
 from .pixel_filter import PixelFilter, parse
 
 __all__ = ["CANDIDATES", "Detection", "detect", "resolve", "step_share"]
@@ -31,7 +33,7 @@ SIDE_NEAR, SIDE_FAR = 3.5, 5.5
 STRAIGHT = 0.25
 """Largest deviation (px) of the curve from its tangent within ``SIDE_FAR`` px of the foot point."""
 MIN_JUMP = 0.05
-"""Smallest jump, as a share of the image's value range, of a profile that counts."""
+"""Smallest jump of a profile that counts, as a share of the image's range in ``dfc.metrics.measure_space``."""
 KEEP = 0.9
 """Share of the profile pixels a candidate's misfit is measured on (its best fitted ones). On the README sample's
 scene (box, 4 x 4 sub-samples) all of them gave ``box`` (2.39 % misfit) over ``box:4`` (3.66 %): a few pixels near
@@ -184,8 +186,7 @@ def _profiles(pixels: np.ndarray, curves):
     b = sides[:, 2] + (sides[:, 2] - sides[:, 3]) * (SIDE_NEAR + d)[:, None] / (SIDE_FAR - SIDE_NEAR)
     jump = a - b
     size = np.linalg.norm(jump, axis=1)
-    span = float(np.ptp(pixels)) or 1.0
-    keep = size >= MIN_JUMP * span
+    keep = np.linalg.norm(measure_space(a, pixels) - measure_space(b, pixels), axis=1) >= MIN_JUMP
     if keep.sum() < MIN_PIXELS:
         return None
     unit = jump[keep] / size[keep, None]

@@ -55,6 +55,19 @@ def test_quality_scale_ldr_hdr_physical():
     assert quality_scale(np.array([-5.0, 20.0]), physical=True).data_range == 25.0
 
 
+def test_measure_space_follows_the_image_it_is_told():
+    from dfc.metrics import measure_space
+
+    hdr = np.array([0.0, 0.5, 0.2, 0.3, 0.1, 0.4, 0.3, 0.2, 0.1, 1000.0])
+    # HDR light: signed tone map, whatever the brightest value
+    np.testing.assert_allclose(measure_space(np.array([-1.0, 0.0, 1.0, 3.0]), hdr), [-0.5, 0.0, 0.5, 0.75])
+    # other values: over the image's range (an LDR image in counts measures like the same image in [0, 1])
+    counts = np.array([100.0, 300.0, 500.0])
+    np.testing.assert_allclose(measure_space(counts), [0.0, 0.5, 1.0])
+    np.testing.assert_allclose(measure_space(np.array([200.0]), counts), [0.25])
+    assert not measure_space(np.full(4, 7.0)).any()
+
+
 def test_hdr_psnr_sees_colour_that_the_value_span_hides():
     """Red (1, 0, 0) decoded as grey (0.35, 0.35, 0.35) beside a few pixels at 1000: on the linear values with the
     span as data range that is 55 dB; tone-mapped it is 16.2 dB (pinned by hand below)."""

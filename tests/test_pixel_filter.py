@@ -107,6 +107,19 @@ def test_auto_picks_the_generating_filter(scene, rasters, generation):
     assert found.pixels > 100 and next(iter(found.misfit)) == generation
 
 
+def test_detect_counts_the_edges_beside_hdr_light(scene, rasters):
+    """One polygon made an emitter a thousand times brighter than the others' jumps: their edges still count
+    (a jump is measured tone-mapped, as the file's PSNR is, not as a share of the emitter's span)."""
+    def value(xy):
+        v = scene.value(xy)
+        return np.where(v == 0.05, 50.0, v)
+
+    raster = filtered_raster(replace(scene, value=value), SIZE, SIZE, "gaussian:0.5")
+    found = detect(raster, scene.curves)
+    assert str(found.filter) == "gaussian:0.5", found.evidence()
+    assert found.pixels >= 0.9 * detect(rasters["gaussian:0.5"], scene.curves).pixels
+
+
 def test_detect_without_evidence_falls_back_to_box(scene):
     flat = np.full((SIZE, SIZE, 1), 0.3, np.float32)
     found = detect(flat, scene.curves)

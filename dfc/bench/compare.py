@@ -110,6 +110,8 @@ class BenchSettings:
         encode, as ``dfc encode --curves auto`` does (``dfc.geometry.sources.prune``)
     refine_curves : such curves are then refined against the pixels, as ``dfc encode --curves auto`` does
         (``dfc.geometry.sources.refine``; both by ``dfc.geometry.sources.auto.ready_curves``)
+    pixel_filter : the filter dfc's encode and refinement assume (``dfc encode --pixel-filter``); the benchmarks set
+        the one found with curves found in the image, as ``dfc encode --curves auto`` does
     super_resolution : with a reference, also measure every method over the whole domain at this many times the
         input's pixels per axis (module notes); 0: not measured
     """
@@ -133,6 +135,7 @@ class BenchSettings:
     default_encode: bool = False
     prune_curves: bool = True
     refine_curves: bool = True
+    pixel_filter: str = "auto"
     super_resolution: int = SUPER_RESOLUTION
 
     def check(self, budgeted: bool = False) -> None:
@@ -211,7 +214,7 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     default = settings.default_encode
     enc = EncodeSettings(max_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
                          steps=None if default else settings.steps, batch_size=None if default else settings.batch_size,
-                         seed=settings.seed, device=settings.device)
+                         seed=settings.seed, device=settings.device, pixel_filter=settings.pixel_filter)
     image = Image(pixels, list(channels), hdr=is_hdr(pixels))
     steps = default_steps("image") if default else settings.steps
     every = max(1, steps // 10)
@@ -226,7 +229,7 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
 
         curves, pruned, refined = ready_curves(pixels, curves, prune=settings.prune_curves,
                                                refine=settings.refine_curves, n_triangles=settings.max_triangles,
-                                               target_bytes=settings.target_bytes)
+                                               target_bytes=settings.target_bytes, pixel_filter=settings.pixel_filter)
         for what, done in (("pruned", pruned), ("refined", refined)):
             if done is not None:
                 why = getattr(done, "warning", None)

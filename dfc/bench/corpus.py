@@ -291,15 +291,15 @@ def _inputs(case: CorpusCase, size: int, settings, shared: Path | None, progress
         inputs = case.build(size, settings, progress)
     if case.auto:
         domain = inputs.pop("domain", None) or inputs["curves"].domain
-        inputs["curves"] = found_curves(inputs["pixels"], domain, progress)
+        inputs["curves"], inputs["pixel_filter"] = found_curves(inputs["pixels"], domain, progress)
     return inputs
 
 
 def found_curves(pixels: np.ndarray, domain, progress: Callable[[str], None] | None = None):
-    """``--curves auto``: the curves ``dfc encode --curves auto`` finds in ``pixels`` (H, W, C)
-    (``dfc.geometry.sources.auto.find_curves``, the pixel filter detected), scaled from pixels onto ``domain``
-    (x0, y0, x1, y1); they are pruned and refined for each budget with dfc's encode (``BenchSettings``).
-    ExtraError without scikit-image."""
+    """``--curves auto``: (curves, filter spec) ``dfc encode --curves auto`` finds in ``pixels`` (H, W, C)
+    (``dfc.geometry.sources.auto.find_curves``, the pixel filter detected), the curves scaled from pixels onto
+    ``domain`` (x0, y0, x1, y1); they are pruned and refined for each budget with dfc's encode, which fits that
+    filter (``BenchSettings.pixel_filter``). ExtraError without scikit-image."""
     from ..errors import ExtraError
     from ..geometry.curves import fit_curves_to_domain
 
@@ -308,10 +308,10 @@ def found_curves(pixels: np.ndarray, domain, progress: Callable[[str], None] | N
     try:
         from ..geometry.sources.auto import find_curves
 
-        found = find_curves(pixels)[0]
+        found, used = find_curves(pixels)[:2]
     except ImportError:
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
-    return fit_curves_to_domain(found, tuple(map(float, domain)))
+    return fit_curves_to_domain(found, tuple(map(float, domain))), str(used)
 
 
 # ----------------------------------------------------------------------------------------------- run
@@ -368,7 +368,7 @@ def run_case(case: CorpusCase, settings, *, size: int = 256, bpp=CORPUS_BPP, sha
     methods = tuple(m for m in (settings.methods or CORPUS_METHODS) if not (is_hdr(inputs["pixels"]) and m in SDR_ONLY))
     zooms = settings.zooms if case.zoom_truth else (1,)
     run_settings = replace(settings, methods=methods, zooms=zooms, pixel_grid=case.pixel_grid,
-                           default_encode=default_encode)
+                           default_encode=default_encode, pixel_filter=inputs.pop("pixel_filter", settings.pixel_filter))
     budgets = sorted({max(1, round(b * w * h / 8)) for b in bpp})
     result = run_rd(inputs, budgets, run_settings, lambda m: progress(f"{case.name}: {m}"))
     record = {k: v for k, v in result.results.items() if k != "runs"}

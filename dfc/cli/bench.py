@@ -5,6 +5,7 @@ physics-informed baselines (TanH field, SIREN, MLP) on a diffusion-curve scene."
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -255,13 +256,18 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
         from ..io.image import read_image
 
         image = read_image(input_path)
-        curves = _auto_curves(image.pixels, (0.0, 0.0, float(image.width), float(image.height)), progress) if auto \
-            else check_domain(read_curves_checked(curves_path, quiet), image.width, image.height, fit_curves_to_image)
+        if auto:
+            curves, used = _auto_curves(image.pixels, (0.0, 0.0, float(image.width), float(image.height)), progress)
+            settings = replace(settings, pixel_filter=used)
+        else:
+            curves = check_domain(read_curves_checked(curves_path, quiet), image.width, image.height,
+                                  fit_curves_to_image)
         points, kinds = (probes, None) if probes else labelled_probes(curves)
         inputs = {"pixels": image.pixels, "curves": curves, "channels": image.channels, "probes": points,
                   "probe_kinds": kinds, "name": input_path}
     if auto and (mitsuba or scene is not None):
-        inputs["curves"] = _auto_curves(inputs["pixels"], inputs["curves"].domain, progress)
+        inputs["curves"], used = _auto_curves(inputs["pixels"], inputs["curves"].domain, progress)
+        settings = replace(settings, pixel_filter=used)
     if auto:
         inputs["name"] = f"{inputs['name']}, dfc fitted with curves found in the raster (--curves auto)"
     if rd:
@@ -279,7 +285,7 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
 
 
 def _auto_curves(pixels, domain, progress):
-    """``--curves auto``: ``dfc.bench.corpus.found_curves``."""
+    """``--curves auto``: (curves, filter spec) of ``dfc.bench.corpus.found_curves``."""
     from ..bench.corpus import found_curves
 
     return found_curves(pixels, domain, progress)

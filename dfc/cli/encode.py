@@ -239,7 +239,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         if settings.steps is None:  # resolved here for the progress bar
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
                                                              settings.batch_size))
-        used = None
+        used = detection = None
         clock = time.perf_counter()
         if curves_path != "auto":
             curves = read_curves_checked(curves_path, quiet)
@@ -250,7 +250,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         with progress_bar(None, "curves", quiet or not worked, unit="stage") as bar:
             if curves_path == "auto":
                 bar.set_description_str("finding the curves")
-                curves, used, curves_info = _auto_curves(signal, settings.pixel_filter)
+                curves, used, curves_info, detection = _auto_curves(signal, settings.pixel_filter)
+                settings = replace(settings, pixel_filter=str(used))  # the fit's filter is the one found
             if prune or refine:
                 bar.set_description_str(" and ".join(["pruning"] * prune + ["refining"] * refine) + " the curves")
                 curves, pruned, refined = _ready_curves(signal, curves, settings, used, prune, refine,
@@ -276,6 +277,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
                                              reference, curves_info, quiet)
     if worked:  # the time line counts finding, pruning and refining the curves too
         report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
+    if detection is not None:  # the filter was detected along every curve found, before pruning
+        report = replace(report, pixel_evidence=detection.evidence())
     if blob is None:  # --workers: rank 0 wrote the file
         pass
     elif output == "-":
@@ -321,7 +324,7 @@ def encode_settings(options: dict):
 
 
 def _auto_curves(image, pixel_filter: str = "auto"):
-    """``--curves auto``: (curves, filter used, record for the file's encoder info) of
+    """``--curves auto``: (curves, filter used, record for the file's encoder info, ``Detection`` or None) of
     ``dfc.geometry.sources.auto.find_curves`` with the encode's pixel filter."""
     from ..errors import ExtraError
 

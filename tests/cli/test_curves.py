@@ -87,13 +87,16 @@ def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, caps
     code, stdout, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
                              "--json", tmp_path / "s.json"], capsys)
     assert code == 0, err
-    expected, used, _ = image_curves_filtered(read_image(disc_exr).pixels)  # the encoder's filter detection
+    expected, used, detection = image_curves_filtered(read_image(disc_exr).pixels)  # the encoder's filter detection
     record = file_stats(out)["encoder"]
     assert record["source"] == "auto" and record["curves"]["pixel_filter"] == str(used)
     assert "settings" not in record["curves"]  # the extractor's defaults: implied by the software version
     assert record["curves"]["curves"] == expected.n_curves == 1 and record["curves"]["pieces"] == len(expected)
     assert "found in the image" in stdout and "1 curves" in stdout
-    assert json.loads((tmp_path / "s.json").read_text())["curves"]["pieces"] == len(expected)
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["curves"]["pieces"] == len(expected)
+    # the fit's filter is the one detected along every curve found, with that detection's evidence
+    assert summary["pixel_filter"] == str(used) and summary["pixel_evidence"] == detection.evidence()
     code, table, _ = run(["stats", out], capsys)
     assert code == 0 and "1 curves" in table and "from the image (--curves auto)" in table
     assert f"pixel filter {used}" in table and "tolerance" not in table

@@ -68,6 +68,8 @@ def test_ready_curves_does_only_what_it_is_asked():
 def test_find_curves_places_a_point_sampled_edge_with_the_point_filter():
     y, x = np.mgrid[0:H, 0:W] + 0.5
     image = (0.3 + 0.5 * ((x - 32.3) ** 2 + (y - 31.6) ** 2 < 20.7 ** 2))[..., None].repeat(3, axis=2)
-    curves, used, record = find_curves(image)
+    curves, used, record, detection = find_curves(image)
     assert str(used) == "point" and record["pixel_filter"] == "point" and curves.source == "auto"
+    assert detection.filter == used and detection.pixels > 0  # the evidence the encode reports
+    assert find_curves(image, "box")[3] is None  # a given filter is not detected
     assert record["curves"] == curves.n_curves == 1 and record["pieces"] == len(curves) <= 8

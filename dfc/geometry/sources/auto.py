@@ -1,7 +1,9 @@
 """The curves ``dfc encode --curves auto`` fits an image with, in one place for the command and the benchmarks.
 
 1. ``find_curves``: the raster extractor at its defaults (``raster.image_curves_filtered``) with the encode's pixel
-   filter ("auto": the box first, then the filter ``dfc.pixel_model.detect`` finds along those curves).
+   filter ("auto": the box first, then the filter ``dfc.pixel_model.detect`` finds along those curves). That filter
+   is the encode's: the refinement and the fit use it rather than detect again along the fewer curves pruning
+   keeps (a 2 KB target may keep too few clean edges to tell the filters apart).
 2. ``ready_curves``: each curve weighed against the bytes it costs for the encode's mesh and byte target (``prune``),
    then the kept ones refined against the pixels through that filter (``refine``).
 
@@ -21,17 +23,19 @@ __all__ = ["find_curves", "ready_curves"]
 
 
 def find_curves(pixels: np.ndarray, pixel_filter: str = "auto"):
-    """(curves, ``PixelFilter`` used, record) of ``pixels`` (H, W, C) linear values: the curves (``source`` "auto")
-    over ``[0, W] × [0, H]``, the filter they were placed with, and the record a file's encoder info keeps of them
-    (``extracted``, ``extractor``, ``pixel_filter``, counts; the extractor's settings are that software version's
-    defaults, so the record leaves them out as it leaves out every default: spec/dfield.md §5). Raises
-    ``ImportError`` without scikit-image, ``InputError`` for an unknown filter spec or an unusable image."""
+    """(curves, ``PixelFilter`` used, record, ``dfc.pixel_model.Detection`` or None) of ``pixels`` (H, W, C) linear
+    values: the curves (``source`` "auto") over ``[0, W] × [0, H]``, the filter they were placed with, the record a
+    file's encoder info keeps of them (``extracted``, ``extractor``, ``pixel_filter``, counts; the extractor's
+    settings are that software version's defaults, so the record leaves them out as it leaves out every default:
+    spec/dfield.md §5), and the detection that chose the filter along every curve found ("auto"; None for a given
+    filter). Raises ``ImportError`` without scikit-image, ``InputError`` for an unknown filter spec or an unusable
+    image."""
     from .raster import image_curves_filtered
 
-    curves, used, _ = image_curves_filtered(pixels, None, pixel_filter)  # the extractor at its defaults
+    curves, used, detection = image_curves_filtered(pixels, None, pixel_filter)  # the extractor at its defaults
     record = {"extracted": "from the image (--curves auto)", "extractor": "dfc.geometry.sources.raster.image_curves",
               "pixel_filter": str(used), "curves": curves.n_curves, "pieces": len(curves)}
-    return replace(curves, source="auto"), used, record
+    return replace(curves, source="auto"), used, record, detection
 
 
 def ready_curves(pixels: np.ndarray, curves: Curves, *, prune: bool = True, refine: bool = True,

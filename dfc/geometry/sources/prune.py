@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
+from ...metrics import measure_space
 from .. import bezier
 from ..curves import DEGREE_LINE, Curves, fit_curves_to_domain
 
@@ -86,18 +87,6 @@ class Pruned:
                 "bytes_kept": round(float(self.cost[self.kept].sum()), 1), "bytes": round(float(self.cost.sum()), 1)}
 
 
-def _measure_space(pixels: np.ndarray) -> np.ndarray:
-    """(H, W, C) float64 values in the space the file's PSNR is measured in: HDR light tone-mapped, others over
-    their range (``dfc.metrics``)."""
-    from ...metrics import is_hdr
-
-    v = np.asarray(pixels, dtype=np.float64)
-    if is_hdr(v):
-        return np.sign(v) * np.abs(v) / (1.0 + np.abs(v))
-    span = float(v.max() - v.min())
-    return (v - v.min()) / span if span > 0 else np.zeros_like(v)
-
-
 def _residual_projector(s: np.ndarray, shape: np.ndarray) -> np.ndarray:
     """(K, K) projector onto the residual of least squares by ``a + b s + J shape(s)``."""
     a = np.stack([np.ones_like(s), s, shape], axis=1)
@@ -111,7 +100,7 @@ def curve_gains(pixels: np.ndarray, curves: Curves, edge: float) -> np.ndarray:
     pixels : (H, W, C) linear values; curves : over the image's domain ``[0, W] × [0, H]`` (scaled onto it when over
     another domain)
     """
-    values = _measure_space(pixels)
+    values = measure_space(pixels)
     H, W, C = values.shape
     curves = fit_curves_to_domain(curves, (0.0, 0.0, float(W), float(H)))
     half = max(float(edge), 2.0)

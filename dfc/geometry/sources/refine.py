@@ -19,7 +19,7 @@ isotropic Gaussian needs no side test: across the curve its share is the normal 
 only the points along the curve are a quadrature (``GAUSS_HERMITE``). Only clean pixels count: the curve within the
 filter's reach of the pixel follows that parabola within ``STRAIGHT`` px (no junction, corner or second curve), the side
 readings are clear of every other curve and inside the image, and the jump is at least ``MIN_JUMP`` of the
-image's range.
+image's range where its PSNR is measured (``dfc.metrics.measure_space``: tone-mapped for HDR light).
 
 Constraints: endpoints that coincide (``JOIN`` px) are one variable (junctions, closed curves, chained pieces);
 an endpoint lying on another piece's inside (a T) is that piece's point at a fixed parameter; an endpoint on the
@@ -40,6 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...errors import InputError
+from ...metrics import measure_space
 from .. import bezier
 from ..curves import Curves
 
@@ -67,7 +68,7 @@ ALONG = 1.0
 """Each side is read this far (px) along the curve either way of the foot point too: a plane per side, whose
 gradient enters the prediction of a mixed pixel (its filter weighs each side's plane over that side's share)."""
 MIN_JUMP = 0.05
-"""Smallest jump, as a share of the image's value range, of a pixel that counts."""
+"""Smallest jump of a pixel that counts, as a share of the image's range in ``dfc.metrics.measure_space``."""
 MAX_MOVE = 1.0
 """Largest move (px) of any control point."""
 JOIN = 1e-6
@@ -405,8 +406,7 @@ def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None
     (a, grad_a), (b, grad_b) = planes
     jump = a - b
     size2 = (jump * jump).sum(axis=1)
-    span = float(np.ptp(pixels)) or 1.0
-    ok &= size2 >= (MIN_JUMP * span) ** 2
+    ok &= np.linalg.norm(measure_space(a, pixels) - measure_space(b, pixels), axis=1) >= MIN_JUMP
     ij = np.floor(centres).astype(np.int64)
     value = pixels[ij[:, 1], ij[:, 0]]
     share = np.einsum("ic,ic->i", value - b, jump) / np.maximum(size2, 1e-300)
