@@ -239,7 +239,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         if settings.steps is None:  # resolved here for the progress bar
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
                                                              settings.batch_size))
-        used = detection = None
+        detection = None
         clock = time.perf_counter()
         if curves_path != "auto":
             curves = read_curves_checked(curves_path, quiet)
@@ -251,11 +251,10 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             if curves_path == "auto":
                 bar.set_description_str("finding the curves")
                 curves, used, curves_info, detection = _auto_curves(signal, settings.pixel_filter)
-                settings = replace(settings, pixel_filter=str(used))  # the fit's filter is the one found
+                settings = replace(settings, pixel_filter=str(used))  # refined and fitted with the filter found
             if prune or refine:
                 bar.set_description_str(" and ".join(["pruning"] * prune + ["refining"] * refine) + " the curves")
-                curves, pruned, refined = _ready_curves(signal, curves, settings, used, prune, refine,
-                                                        fit_curves_to_image)
+                curves, pruned, refined = _ready_curves(signal, curves, settings, prune, refine, fit_curves_to_image)
         if refined is not None and refined.warning and not quiet:
             click.echo(f"dfc: warning: {refined.warning}", err=True)
         if curves_info is not None:
@@ -336,20 +335,20 @@ def _auto_curves(image, pixel_filter: str = "auto"):
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
 
 
-def _ready_curves(image, curves, settings, used, prune: bool, refine: bool, fit_curves_to_image: bool):
+def _ready_curves(image, curves, settings, prune: bool, refine: bool, fit_curves_to_image: bool):
     """(curves, ``Pruned`` or None, ``Refined`` or None) of ``--prune-curves`` and ``--refine-curves``
     (``dfc.geometry.sources.auto.ready_curves``): ``curves`` on the image's domain (as the encoder takes them:
     ``dfc.codec.check_domain``) less those that do not earn their bytes for a mesh of ``settings.max_triangles``
-    (default size when None) in a file of ``settings.target_bytes``, then refined against the pixels through ``used``
-    (the extractor's filter) or the filter of ``settings.pixel_filter`` ("auto": detected along the curves, as the
-    encoder does)."""
+    (default size when None) in a file of ``settings.target_bytes``, then refined against the pixels through the
+    filter of ``settings.pixel_filter`` (with ``--curves auto`` the one the extractor found; "auto": detected along
+    the curves, as the encoder does)."""
     from ..codec import check_domain
     from ..geometry.sources.auto import ready_curves
 
     curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
     curves, pruned, refined = ready_curves(image.pixels, curves, prune=prune, refine=refine,
                                            n_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
-                                           pixel_filter=used or settings.pixel_filter)
+                                           pixel_filter=settings.pixel_filter)
     return curves, pruned, refined
 
 
