@@ -29,7 +29,8 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["DECODE_POINTS", "FILTERS", "TRAIN_POINTS", "PixelFilter", "lattice", "parse"]
+__all__ = ["DECODE_POINTS", "FILTERS", "STEEP_POINTS", "STEEP_RANGE", "TRAIN_POINTS", "PixelFilter", "lattice",
+           "parse"]
 
 FILTERS = ("point", "box", "tent", "gaussian", "blackman-harris", "mitchell")
 """Filter names, as ``parse`` takes them (``auto`` is the encoder's detection, ``dfc.pixel_model``)."""
@@ -39,6 +40,13 @@ MAX_PARAM = {"box": 64, "gaussian": 8.0, "blackman-harris": 16.0}
 """Largest parameter accepted: box sub-samples per axis, Gaussian σ and Blackman–Harris width (px)."""
 TRAIN_POINTS = 16
 """Quadrature points per filtered pixel in a training batch (shifted lattice: exact in expectation)."""
+STEEP_POINTS = 64
+"""Quadrature points per filtered pixel of a training batch where the values span more than ``STEEP_RANGE`` of the
+loss's units around it (``dfc.train.fit``): a random quadrature's variance grows with the square of the jump it
+straddles, and the fit lowers the squared error's variance term by shrinking the jump."""
+STEEP_RANGE = 1.0
+"""Span of the values (in the loss's units: ``log(1 + v)`` for HDR light, else the values normalised to [0, 1])
+within a filtered pixel's reach above which it gets ``STEEP_POINTS``: only HDR jumps, such as an emitter's edge."""
 DECODE_POINTS = 256
 """Quadrature points per filtered pixel of a decode (fixed lattice); the continuous box keeps
 ``dfc.render.EDGE_SPP`` points, as decodes without a stored filter do."""

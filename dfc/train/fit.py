@@ -20,7 +20,7 @@ from ..geometry.pixels import edge_pixels
 from ..io.image import check_pixels
 from ..metrics import QualityScale, is_hdr
 from ..metrics import data_range as value_span
-from ..pixel_filter import TRAIN_POINTS
+from ..pixel_filter import STEEP_POINTS, STEEP_RANGE, TRAIN_POINTS
 from ..settings import FitSettings
 from .loop import BETAS, Sampler, Schedule, train
 from .losses import DataLoss
@@ -245,11 +245,13 @@ def fit_image(
         if held_out is not None:
             raise ValueError("exclude is not supported with a pixel filter")
         filtered = pixel_filter.filtered(edge_pixels(mesh, *pixels.shape[:2]))
-        points = n + (TRAIN_POINTS - 1) * int(filtered.sum())
+        steep = steep_pixels(pixels, run["loss"], pixel_filter.reach) & filtered
+        points = n + (TRAIN_POINTS - 1) * int(filtered.sum()) + (STEEP_POINTS - TRAIN_POINTS) * int(steep.sum())
         sampler = filtered_sampler(pixels, mesh.domain, settings.batch_size, pixel_filter, filtered,
                                    device=settings.device,
                                    query=field.query if points <= MAX_CACHED_SAMPLES else None,
-                                   sets=max(1, min(8, MAX_CACHED_SAMPLES // points)), seed=settings.seed)
+                                   sets=max(1, min(8, MAX_CACHED_SAMPLES // points)), seed=settings.seed,
+                                   steep=steep)
     else:
         sampler = image_sampler(
             pixels, mesh.domain, settings.batch_size, device=settings.device, query=field.query if cached else None,
@@ -259,6 +261,19 @@ def fit_image(
         callback=callback, feature_bits=feature_bits, weight_bits=weight_bits,
         decoder_lr=image_decoder_lr(run["steps"]), **run)
     return model
+
+
+def steep_pixels(pixels: np.ndarray, loss: str, reach: int) -> np.ndarray:
+    """(H, W) bool: the pixels of ``pixels`` (H, W, C) around which, within ``reach`` px, the values span more than
+    ``dfc.pixel_filter.STEEP_RANGE`` in the units of ``loss`` (``signed_log`` for the relative losses "logmse" and
+    "relmse", else the values)."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    v = np.asarray(pixels, dtype=np.float64)
+    if loss in ("logmse", "relmse"):
+        v = np.sign(v) * np.log1p(np.abs(v))
+    size = (2 * reach + 1, 2 * reach + 1, 1)
+    return ((maximum_filter(v, size=size) - minimum_filter(v, size=size)).max(axis=2)) > STEEP_RANGE
 
 
 def _new_model(values: np.ndarray, mesh, channels, settings: FitSettings, scale, model_kw, times=None):

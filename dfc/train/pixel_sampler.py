@@ -3,7 +3,9 @@ by that kernel at the pixel.
 
 Pixels near a discontinuity (``filtered``: those the kernel of a pixel it crosses reaches) are evaluated at
 ``dfc.pixel_filter.TRAIN_POINTS`` quadrature points, the lattice shifted at random per pixel (exact in
-expectation); every other pixel at one point — its centre, or for ``box`` a uniformly jittered point in it, as
+expectation), and at ``dfc.pixel_filter.STEEP_POINTS`` where ``steep`` marks them (beside an HDR jump, where the
+squared error's share of the quadrature's variance would make the fit shrink the jump); every other pixel at one
+point — its centre, or for ``box`` a uniformly jittered point in it, as
 the unfiltered fit samples: there the field is smooth and a point stands for the filtered value to first order.
 ``sets`` draws of all points are made and located once (``query``), each in its own random order of the pixels with a
 pixel's points together, and reused in turn, one per epoch. An epoch visits its set in chunks of consecutive pixels
@@ -25,7 +27,7 @@ import torch
 from torch import Tensor
 
 from ..field.feature_field import PackedQuery, pack_query
-from ..pixel_filter import TRAIN_POINTS, PixelFilter
+from ..pixel_filter import STEEP_POINTS, TRAIN_POINTS, PixelFilter
 from .samplers import QUERY_CHUNK
 
 __all__ = ["BLOCK_CHUNKS", "CHUNKS_PER_BATCH", "PixelWeights", "filtered_sampler"]
@@ -74,7 +76,7 @@ def _owner(counts: np.ndarray, device) -> Tensor:
 
 class _FilteredPixels:
     def __init__(self, pixels: Tensor, domain, batch_size: int, f: PixelFilter, filtered: np.ndarray,
-                 query, sets: int, seed: int):
+                 query, sets: int, seed: int, steep: np.ndarray | None = None):
         h, w, c = pixels.shape
         n = h * w
         self.n, self.sets, self.batch_size = n, sets, batch_size
@@ -82,6 +84,8 @@ class _FilteredPixels:
         count = np.where(filtered.ravel(), TRAIN_POINTS if f.mixes else 1, 1)
         if f.name == "box" and f.param is not None and f.param ** 2 <= TRAIN_POINTS:
             count[filtered.ravel()] = int(f.param) ** 2
+        elif f.mixes and steep is not None:
+            count[filtered.ravel() & steep.ravel()] = STEEP_POINTS
         self.total = int(count.sum())
         rng = np.random.default_rng(seed)
         x0, y0, x1, y1 = domain
@@ -97,9 +101,10 @@ class _FilteredPixels:
             wt = np.ones(self.total)
             if f.name == "box":  # unfiltered pixels: a jittered point, as the box fit always sampled
                 pts[start[~mixed]] += rng.random((int((~mixed).sum()), 2)) - 0.5
-            if mixed.any():
-                off, wm = f.nodes(TRAIN_POINTS, rng.random((int(mixed.sum()), 2)))
-                at = (start[mixed][:, None] + np.arange(off.shape[1])[None]).ravel()
+            for points in np.unique(k[mixed]):  # the pixels with a quadrature of each size
+                sel = mixed & (k == points)
+                off, wm = f.nodes(int(points), rng.random((int(sel.sum()), 2)))
+                at = (start[sel][:, None] + np.arange(off.shape[1])[None]).ravel()
                 pts[at] += off.reshape(-1, 2)
                 wt[at] = wm.ravel()
             xy.append(np.clip(pts * size + [x0, y0], [x0, y0], [x1, y1]))
@@ -168,7 +173,7 @@ class _FilteredPixels:
 
 
 def filtered_sampler(pixels: np.ndarray, domain, batch_size: int, pixel_filter: PixelFilter, filtered: np.ndarray,
-                     *, device: str = "cpu", query=None, sets: int = 1, seed: int = 0):
+                     *, device: str = "cpu", query=None, sets: int = 1, seed: int = 0, steep: np.ndarray | None = None):
     """Sampler over a raster (H, W, C) covering ``domain`` made with ``pixel_filter``; ``filtered`` (H, W) bool marks
     the pixels evaluated with the kernel's quadrature (module notes). ``query``: ``field.query`` to locate every
     point once (about 100 bytes a point and set). Returns ``sampler(step, generator) -> (xy, target,
@@ -179,4 +184,5 @@ def filtered_sampler(pixels: np.ndarray, domain, batch_size: int, pixel_filter: 
     if filtered.shape != pixels.shape[:2]:
         raise ValueError(f"filtered must have the image's shape {pixels.shape[:2]}, got {filtered.shape}")
     return _FilteredPixels(torch.from_numpy(np.ascontiguousarray(pixels, dtype=np.float32)).to(device),
-                           tuple(float(v) for v in domain), batch_size, pixel_filter, filtered, query, sets, seed)
+                           tuple(float(v) for v in domain), batch_size, pixel_filter, filtered, query, sets, seed,
+                           steep)

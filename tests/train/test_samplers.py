@@ -84,3 +84,33 @@ def test_filtered_sampler_batches_cross_epochs(batch_size, chunks, block, monkey
     for e in range(len(pixels) // n):  # every pixel once per epoch, a fresh order each
         assert sorted(pixels[e * n:(e + 1) * n].tolist()) == list(range(n))
     assert not torch.equal(pixels[:n], pixels[n:2 * n])
+
+
+
+def test_steep_pixels_get_the_dense_quadrature():
+    """Beside an HDR step (0.2 to 30: 3.3 in log units) the filtered pixels get ``STEEP_POINTS`` points, the others
+    ``TRAIN_POINTS``, each pixel's weights summing to one; a step within [0, 1] (an LDR image's whole range) is
+    never steep."""
+    from dfc.pixel_filter import STEEP_POINTS, TRAIN_POINTS, parse
+    from dfc.train.fit import steep_pixels
+    from dfc.train.pixel_sampler import filtered_sampler
+
+    h, w = 8, 12
+    hdr = np.full((h, w, 1), 0.2, np.float32)
+    hdr[:, 6:] = 30.0
+    hdr[:, :3] = 0.9
+    steep = steep_pixels(hdr, "logmse", 2)
+    assert steep[:, 4:8].all() and not steep[:, :4].any() and not steep[:, 8:].any()
+    assert not steep_pixels(np.clip(hdr, 0.0, 1.0), "mse", 2).any()
+    filtered = np.zeros((h, w), bool)
+    filtered[:, 1:7] = True
+    index = np.arange(h * w, dtype=np.float32).reshape(h, w, 1)  # each pixel's target is its index
+    sampler = filtered_sampler(index, (0.0, 0.0, float(w), float(h)), h * w, parse("gaussian:0.5"), filtered,
+                               steep=steep & filtered, seed=0)
+    xy, target, pw = sampler(0, torch.Generator().manual_seed(0))
+    pixel = target[:, 0].long().numpy()
+    counts = np.zeros(h * w, int)
+    counts[pixel] = torch.bincount(pw.row, minlength=h * w).numpy()
+    want = np.where(filtered & steep, STEEP_POINTS, np.where(filtered, TRAIN_POINTS, 1))
+    np.testing.assert_array_equal(counts.reshape(h, w), want)
+    np.testing.assert_allclose(torch.zeros(h * w).index_add_(0, pw.row, pw.weight), 1.0, rtol=1e-5)
