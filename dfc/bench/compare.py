@@ -15,8 +15,9 @@
 Measurements, the same for every method:
 
 - *1× image PSNR*: each method rendered over the whole domain at the raster's resolution with the same box filter
-  (a centred ``pixel_grid`` × ``pixel_grid`` grid of points per pixel; a stored raster of that size as stored,
-  ``dfc.bench.measure``), against the best
+  (a centred ``pixel_grid`` × ``pixel_grid`` grid of points per pixel), but for what its own decoder gives at that
+  size: a stored raster of that size as stored, dfc's file as ``dfc decode`` renders it at its input's size (its
+  stored pixel filter on the pixels a curve changes; ``dfc.bench.measure``), against the best
   truth there is: for an analytic scene its box-filtered exact value on a finer stratified grid
   (``TRUTH_SPP`` × ``TRUTH_SPP`` points per pixel; the training raster used 4 × 4 others), for a user image the
   image itself. Reported on every pixel and without the pixels a curve crosses.
@@ -189,13 +190,23 @@ def throughput(model: nn.Module, domain, device: str, seed: int = 0) -> float:
 
 
 class _Remap(nn.Module):
-    """``model`` living on ``inner`` domain, queried in ``outer`` domain units (an affine map per axis)."""
+    """``model`` living on ``inner`` domain, queried in ``outer`` domain units (an affine map per axis). With
+    ``size`` (the input's (width, height)), ``model`` a dfc file's: ``pixels()`` is that file decoded at its input's
+    size as ``dfc decode`` decodes it there (``dfc.render.default_pixel_filter``: the stored pixel filter), what
+    ``dfc.bench.measure.image_render`` takes for the 1× render, as it takes a stored raster's pixels."""
 
-    def __init__(self, model: nn.Module, outer, inner):
+    def __init__(self, model: nn.Module, outer, inner, size: tuple[int, int] | None = None):
         super().__init__()
         self.model = model
         self.scale = [(inner[2] - inner[0]) / (outer[2] - outer[0]), (inner[3] - inner[1]) / (outer[3] - outer[1])]
         self.outer, self.inner = outer, inner
+        self.size = size
+
+    def pixels(self) -> np.ndarray:
+        from ..render import default_pixel_filter, render
+
+        w, h = self.size
+        return render(self.model, w, h, pixel_filter=default_pixel_filter(self.model, w, h)[0])
 
     def forward(self, xy):
         s = torch.tensor(self.scale, dtype=xy.dtype, device=xy.device)
@@ -242,7 +253,7 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
                "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds,
                **({"pruned_curves": pruned.to_dict()} if pruned is not None else {}),
                **({"refined_curves": refined.to_dict()} if refined is not None else {})}
-    return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h))), len(blob), {"blob": blob, **details}
+    return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h)), (w, h)), len(blob), {"blob": blob, **details}
 
 
 def _fit_neural(name, pixels, domain, channels, n_bytes, settings: BenchSettings, loss, scale, match_s,

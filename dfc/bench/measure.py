@@ -60,8 +60,10 @@ def grid_points(window, width: int, height: int, grid: int, rows: tuple[int, int
 
 
 def image_render(model, domain, width: int, height: int, grid: int, device: str = "cpu") -> np.ndarray:
-    """The 1× render (height, width, C) float32 of the whole domain: a stored raster of exactly this size as it is
-    stored (``PixelImage.pixels``), anything else as the mean over a ``grid × grid`` stratified grid per pixel."""
+    """The 1× render (height, width, C) float32 of the whole domain: a model with a ``size`` of exactly this size
+    and ``pixels()`` as it decodes itself there (a stored raster as stored, ``PixelImage.pixels``; a dfc file as
+    ``dfc decode`` renders it at its input's size), anything else as the mean over a ``grid × grid`` stratified grid
+    per pixel."""
     size = getattr(model, "size", None)
     if size is not None and tuple(size) == (width, height) and hasattr(model, "pixels"):
         return model.pixels()

@@ -42,6 +42,26 @@ def test_a_stored_raster_of_the_same_size_is_read_as_stored():
     assert blurred.shape == (3, 5, 3) and not np.allclose(blurred, pixels[::2, ::2])
 
 
+def test_a_dfc_file_at_its_input_size_is_rendered_as_dfc_decode_renders_it():
+    """A Gaussian-filtered raster fitted with that filter: the bench's 1× render is the file's decode at the input's
+    size (the stored filter on the pixels a curve changes), not the box grid every other model gets; in the bench's
+    own domain units too."""
+    from dfc.bench.compare import _Remap
+    from dfc.bench.pixel_filters import filtered_raster, polygon_scene
+    from dfc.codec import EncodeSettings, encode_image, loads
+    from dfc.render import render
+
+    scene = polygon_scene(32.0)
+    raster = filtered_raster(scene, 32, 32, "gaussian:0.5")
+    blob, _ = encode_image(raster, scene.curves, EncodeSettings(steps=30, batch_size=1024, pixel_filter="gaussian:0.5"))
+    model = loads(blob)
+    decoded = render(model, 32, 32, pixel_filter=model.header["pixel_filter"])
+    wrapped = _Remap(model, (0.0, 0.0, 2.0, 2.0), (0.0, 0.0, 32.0, 32.0), (32, 32))
+    assert np.array_equal(image_render(wrapped, (0.0, 0.0, 2.0, 2.0), 32, 32, 4), decoded)
+    boxed = image_render(_Remap(model, (0.0, 0.0, 2.0, 2.0), (0.0, 0.0, 32.0, 32.0)), (0.0, 0.0, 2.0, 2.0), 32, 32, 4)
+    assert np.abs(boxed - decoded).max() > 1e-3  # the box grid is another filter
+
+
 def test_mixed_pixels_come_from_the_curves_as_from_the_mesh():
     curves = _pieces([("line", [(1, [(2.5, 0.0), (2.5, 8.0)])]),
                       ("arc", [(3, [(4.0, 1.0), (8.0, 1.0), (8.0, 7.0), (4.0, 7.0)])])], (0.0, 0.0, 10.0, 8.0))
