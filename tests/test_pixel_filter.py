@@ -120,6 +120,21 @@ def test_detect_counts_the_edges_beside_hdr_light(scene, rasters):
     assert found.pixels >= 0.9 * detect(rasters["gaussian:0.5"], scene.curves).pixels
 
 
+def test_detect_keeps_box_when_noise_alone_favours_a_wider_filter():
+    """A box-filtered raster with noise (σ 0.06 of a 0.05-0.85 scene): the Gaussian fits a little better by chance,
+    by about one standard error, not the three a switch from box asks; a Gaussian raster with less noise (σ 0.01)
+    switches."""
+    from dfc.pixel_model import MIN_EVIDENCE
+
+    scene64 = polygon_scene(64.0)
+    noise = np.random.default_rng(1).normal(0.0, 0.06, (64, 64, 1)).astype(np.float32)
+    found = detect(filtered_raster(scene64, 64, 64, "box:16") + noise, scene64.curves)
+    assert next(iter(found.misfit)) == "gaussian:0.5" and found.t < MIN_EVIDENCE
+    assert str(found.filter) == "box" and "box kept" in found.evidence()
+    found = detect(filtered_raster(scene64, 64, 64, "gaussian:0.5") + noise / 6, scene64.curves)
+    assert str(found.filter) == "gaussian:0.5" and found.t >= MIN_EVIDENCE
+
+
 def test_detect_without_evidence_falls_back_to_box(scene):
     flat = np.full((SIZE, SIZE, 1), 0.3, np.float32)
     found = detect(flat, scene.curves)
