@@ -5,8 +5,8 @@ Pixels near a discontinuity (``filtered``: those the kernel of a pixel it crosse
 ``dfc.pixel_filter.TRAIN_POINTS`` quadrature points, the lattice shifted at random per pixel (exact in
 expectation), and at ``dfc.pixel_filter.STEEP_POINTS`` where ``steep`` marks them (beside an HDR jump, where the
 squared error's share of the quadrature's variance would make the fit shrink the jump); every other pixel at one
-point — its centre, or for ``box`` a uniformly jittered point in it, as
-the unfiltered fit samples: there the field is smooth and a point stands for the filtered value to first order.
+point — its centre, or for ``box`` a uniformly jittered point in it, as the unfiltered fit samples: there the field
+is smooth and a point stands for the filtered value to first order.
 ``sets`` draws of all points are made and located once (``query``), each in its own random order of the pixels with a
 pixel's points together, and reused in turn, one per epoch. An epoch visits its set in chunks of consecutive pixels
 (``batch_size / CHUNKS_PER_BATCH``) taken in a fresh random order, copied ``BLOCK_CHUNKS`` at a time into one
@@ -175,9 +175,9 @@ class _FilteredPixels:
 def filtered_sampler(pixels: np.ndarray, domain, batch_size: int, pixel_filter: PixelFilter, filtered: np.ndarray,
                      *, device: str = "cpu", query=None, sets: int = 1, seed: int = 0, steep: np.ndarray | None = None):
     """Sampler over a raster (H, W, C) covering ``domain`` made with ``pixel_filter``; ``filtered`` (H, W) bool marks
-    the pixels evaluated with the kernel's quadrature (module notes). ``query``: ``field.query`` to locate every
-    point once (about 100 bytes a point and set). Returns ``sampler(step, generator) -> (xy, target,
-    PixelWeights)``."""
+    the pixels evaluated with the kernel's quadrature, ``steep`` (H, W) bool those of them given ``STEEP_POINTS``
+    (module notes). ``query``: ``field.query`` to locate every point once (about 100 bytes a point and set). Returns
+    ``sampler(step, generator) -> (xy, target, PixelWeights)``."""
     if not isinstance(batch_size, int) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
     filtered = np.asarray(filtered, dtype=bool)
