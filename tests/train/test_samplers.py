@@ -86,7 +86,6 @@ def test_filtered_sampler_batches_cross_epochs(batch_size, chunks, block, monkey
     assert not torch.equal(pixels[:n], pixels[n:2 * n])
 
 
-
 def test_steep_pixels_get_the_dense_quadrature():
     """Beside an HDR step (0.2 to 30: 3.3 in log units) the filtered pixels get ``STEEP_POINTS`` points, the others
     ``TRAIN_POINTS``, each pixel's weights summing to one; a step within [0, 1] (an LDR image's whole range) is
