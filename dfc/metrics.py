@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["HDR_PEAK_RATIO", "QualityScale", "data_range", "is_hdr", "measure_space", "mse", "psnr", "quality_scale",
-           "tonemap"]
+           "step_size", "tonemap"]
 
 HDR_PEAK_RATIO = 8.0
 """Colours are HDR light when their peak is above 1 and at least this many times their mean (three stops): the
@@ -117,6 +117,13 @@ def measure_space(values, like=None) -> np.ndarray:
         return np.sign(v) * np.abs(v) / (1.0 + np.abs(v))
     lo, hi = float(ref.min()), float(ref.max())
     return (v - lo) / (hi - lo) if hi > lo else np.zeros_like(v)
+
+
+def step_size(a, b, like) -> np.ndarray:
+    """(N,) size of the steps from colours ``b`` to ``a`` (N, C) in ``measure_space`` of the image ``like``, as a
+    share of its range: the Euclidean norm of their difference there."""
+    s = measure_space(np.stack([a, b]), like)
+    return np.linalg.norm(s[0] - s[1], axis=-1)
 
 
 def tonemap(values):

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .metrics import measure_space
+from .metrics import step_size
 from .pixel_filter import PixelFilter, parse
 
 __all__ = ["CANDIDATES", "Detection", "detect", "resolve", "step_share"]
@@ -216,7 +216,7 @@ def _profiles(pixels: np.ndarray, curves):
     b = sides[:, 2] + (sides[:, 2] - sides[:, 3]) * (SIDE_NEAR + d)[:, None] / (SIDE_FAR - SIDE_NEAR)
     jump = a - b
     size = np.linalg.norm(jump, axis=1)
-    keep = np.linalg.norm(measure_space(a, pixels) - measure_space(b, pixels), axis=1) >= MIN_JUMP
+    keep = step_size(a, b, pixels) >= MIN_JUMP
     if keep.sum() < MIN_PIXELS:
         return None
     unit = jump[keep] / size[keep, None]

@@ -66,6 +66,10 @@ def test_measure_space_follows_the_image_it_is_told():
     np.testing.assert_allclose(measure_space(counts), [0.0, 0.5, 1.0])
     np.testing.assert_allclose(measure_space(np.array([200.0]), counts), [0.25])
     assert not measure_space(np.full(4, 7.0)).any()
+    from dfc.metrics import step_size  # a step's size there: 0 → 3 is 0.75 beside HDR light, 100 → 300 a half in counts
+
+    np.testing.assert_allclose(step_size(np.array([[3.0, 0.0]]), np.zeros((1, 2)), hdr), [0.75])
+    np.testing.assert_allclose(step_size(np.array([[300.0]]), np.array([[100.0]]), counts), [0.5])
 
 
 def test_hdr_psnr_sees_colour_that_the_value_span_hides():

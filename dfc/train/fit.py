@@ -23,7 +23,7 @@ from ..metrics import data_range as value_span
 from ..pixel_filter import STEEP_POINTS, STEEP_RANGE, TRAIN_POINTS
 from ..settings import FitSettings
 from .loop import BETAS, Sampler, Schedule, train
-from .losses import DataLoss
+from .losses import DataLoss, signed_log
 from .samplers import frame_sampler, image_sampler, point_sampler
 
 __all__ = ["BATCH_SIZE", "DECODER_LR", "DECODER_LR_MIN_STEPS", "DEFAULT_STEPS", "IMAGE_LR", "IMAGE_STEPS", "FitSettings",
@@ -271,7 +271,7 @@ def steep_pixels(pixels: np.ndarray, loss: str, reach: int) -> np.ndarray:
 
     v = np.asarray(pixels, dtype=np.float64)
     if loss in ("logmse", "relmse"):
-        v = np.sign(v) * np.log1p(np.abs(v))
+        v = signed_log(torch.from_numpy(v)).numpy()
     size = (2 * reach + 1, 2 * reach + 1, 1)
     return ((maximum_filter(v, size=size) - minimum_filter(v, size=size)).max(axis=2)) > STEEP_RANGE
 

@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...errors import InputError
-from ...metrics import measure_space
+from ...metrics import step_size
 from .. import bezier
 from ..curves import Curves
 
@@ -406,7 +406,7 @@ def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None
     (a, grad_a), (b, grad_b) = planes
     jump = a - b
     size2 = (jump * jump).sum(axis=1)
-    ok &= np.linalg.norm(measure_space(a, pixels) - measure_space(b, pixels), axis=1) >= MIN_JUMP
+    ok &= step_size(a, b, pixels) >= MIN_JUMP
     ij = np.floor(centres).astype(np.int64)
     value = pixels[ij[:, 1], ij[:, 0]]
     share = np.einsum("ic,ic->i", value - b, jump) / np.maximum(size2, 1e-300)
