@@ -7,8 +7,8 @@ the wider kernels. The sides are read on the normal through the pixel, ``SIDE_NE
 curve (bilinear), beyond every candidate's reach, and extrapolated linearly to the pixel (a smooth trend across the
 curve cancels). Each candidate (``CANDIDATES``) predicts every pixel within ``PROFILE_REACH`` px of a curve; the one
 with the smallest RMS misfit, as a share of the jump, wins. Only clean profiles count: the curve straight within
-``STRAIGHT`` px over ``SIDE_FAR`` px around the pixel, no other curve near the side samples, a jump of at least
-``MIN_JUMP`` of the image's range where its PSNR is measured (``dfc.metrics.measure_space``: tone-mapped for HDR
+``STRAIGHT`` px over ``STRAIGHT_REACH`` px around its foot point, no other curve near the side samples, a jump of at
+least ``MIN_JUMP`` of the image's range where its PSNR is measured (``dfc.metrics.measure_space``: tone-mapped for HDR
 light, so an emitter in view does not make every other edge too small to count).
 """
 
@@ -31,7 +31,11 @@ PROFILE_REACH = 2.5
 SIDE_NEAR, SIDE_FAR = 3.5, 5.5
 """Distances (px) from the curve at which each side's value is read."""
 STRAIGHT = 0.25
-"""Largest deviation (px) of the curve from its tangent within ``SIDE_FAR`` px of the foot point."""
+"""Largest deviation (px) of the curve from its tangent within ``STRAIGHT_REACH`` px of the foot point."""
+STRAIGHT_REACH = 3.0
+"""Distance (px) from the foot point over which the curve must be straight: the stretch a candidate's support
+(at most 2 px from a pixel within ``PROFILE_REACH``) can cross. Over ``SIDE_FAR`` it excluded every curve of radius
+under 60 px, and so every pixel of a diffusion-curve drawing's rounded shapes (box:2 went undetected)."""
 MIN_JUMP = 0.05
 """Smallest jump of a profile that counts, as a share of the image's range in ``dfc.metrics.measure_space``."""
 KEEP = 0.9
@@ -194,8 +198,8 @@ def _profiles(pixels: np.ndarray, curves):
     n = np.stack([-t[:, 1], t[:, 0]], axis=1)
     d = np.einsum("ij,ij->i", centres - p, n)
     ok = np.ones(len(d), dtype=bool)
-    # straight: every curve sample within SIDE_FAR of the foot point lies near its tangent line
-    for k, group in enumerate(tree.query_ball_point(p, SIDE_FAR)):
+    # straight: every curve sample within STRAIGHT_REACH of the foot point lies near its tangent line
+    for k, group in enumerate(tree.query_ball_point(p, STRAIGHT_REACH)):
         q = pts[group] - p[k]
         if np.abs(q @ n[k]).max() > STRAIGHT:
             ok[k] = False

@@ -135,6 +135,20 @@ def test_detect_keeps_box_when_noise_alone_favours_a_wider_filter():
     assert str(found.filter) == "gaussian:0.5" and found.t >= MIN_EVIDENCE
 
 
+@pytest.mark.parametrize("generation", ["box:2", "gaussian:0.5"])
+def test_detect_reads_round_edges(generation):
+    """A disc of radius 20 px (a diffusion-curve drawing's rounded shapes): the curve bends 0.76 px from its tangent
+    over the side samples' 5.5 px but stays straight over the filter's support, so its edge pixels count."""
+    from dfc.bench.scenes import AnalyticScene, _circle, _pieces
+
+    curves = _pieces([("disc", _circle(32.0, 32.0, 20.0))], (0.0, 0.0, 64.0, 64.0))
+    disc = AnalyticScene("disc", curves, ["Y"],
+                         lambda xy: np.where(np.hypot(xy[:, 0] - 32.0, xy[:, 1] - 32.0) < 20.0, 0.8, 0.2)[:, None])
+    found = detect(filtered_raster(disc, 64, 64, generation), curves)
+    assert str(found.filter) == generation, found.evidence()
+    assert found.pixels > 200
+
+
 def test_detect_without_evidence_falls_back_to_box(scene):
     flat = np.full((SIZE, SIZE, 1), 0.3, np.float32)
     found = detect(flat, scene.curves)
