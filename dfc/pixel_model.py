@@ -34,8 +34,7 @@ STRAIGHT = 0.25
 """Largest deviation (px) of the curve from its tangent within ``STRAIGHT_REACH`` px of the foot point."""
 STRAIGHT_REACH = 3.0
 """Distance (px) from the foot point over which the curve must be straight: the stretch a candidate's support
-(at most 2 px from a pixel within ``PROFILE_REACH``) can cross. Over ``SIDE_FAR`` it excluded every curve of radius
-under 60 px, and so every pixel of a diffusion-curve drawing's rounded shapes (box:2 went undetected)."""
+(at most 2 px from a pixel within ``PROFILE_REACH``) can cross, so a curve of radius 20 px still counts."""
 MIN_JUMP = 0.05
 """Smallest jump of a profile that counts, as a share of the image's range in ``dfc.metrics.measure_space``."""
 KEEP = 0.9
