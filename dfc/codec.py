@@ -587,7 +587,7 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
 def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mesh_settings, residual,
             min_area: float, size_of, quality, fit_kw, fewer_bits: bool = False):
     """``settings.refine`` rounds of error-driven refinement of a fitted ``model``: split the triangles where
-    ``residual`` is largest (curved triangles stay), rebuild the mesh (with ``mesh_settings``, which built the first
+    ``residual`` is largest (a curved triangle by halving its piece), rebuild the mesh (with ``mesh_settings``, which built the first
     one, plus the new vertices) and refit from the current fit (``init``). Without a byte target a round splits the
     triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
     (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,

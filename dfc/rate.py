@@ -87,18 +87,20 @@ def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | Non
 
 def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: float = REFINE_SHARE,
                       most: int, min_area: float = 0.0) -> np.ndarray:
-    """Centroids (P, 2) float64 of the triangles to split next: ``error`` (M,) ≥ 0 at points ``xy`` (M, 2) is summed
-    per triangle; the triangles with the largest sums, until they hold ``share`` of the total, at most ``most``,
-    leaving out curved triangles (the curves stay as they are) and triangles below ``min_area``."""
+    """Points (P, 2) float64 that split the triangles to split next (``dfc.geometry.triangulate``'s
+    ``extra_points``): ``error`` (M,) ≥ 0 at points ``xy`` (M, 2) is summed per triangle; the triangles with the
+    largest sums, until they hold ``share`` of the total, at most ``most``, leaving out triangles below ``min_area``.
+    A triangle's point is its centroid; a curved triangle's is the centroid of its piece's tangent triangle, which
+    halves the piece (the curve's geometry unchanged)."""
     from .field.layout import build_layout
     from .field.locate import PointLocator
+    from .geometry.bezier import tangent_apex
     from .geometry.plane import triangle_areas
 
     locator = PointLocator(mesh.vertices, mesh.triangles, mesh.domain)
     with torch.no_grad():
         tri, _ = locator(locator.clamp(torch.from_numpy(np.asarray(xy, np.float64))))
     total = np.bincount(tri.cpu().numpy(), weights=np.asarray(error, np.float64), minlength=mesh.n_triangles)
-    total[build_layout(mesh).triangle_curve >= 0] = 0.0
     total[triangle_areas(mesh.vertices[mesh.triangles]) < min_area] = 0.0
     order = np.argsort(-total, kind="stable")
     if most < 1 or total.sum() <= 0:
@@ -106,13 +108,21 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
     reach = np.searchsorted(np.cumsum(total[order]), share * total.sum()) + 1
     chosen = order[:min(most, reach)]
     chosen = chosen[total[chosen] > 0]
-    return mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
+    points = mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
+    piece = build_layout(mesh).triangle_curve[chosen]
+    curved = piece >= 0
+    if curved.any():
+        cp = mesh.curve_control_points[piece[curved]]
+        apex = tangent_apex(cp)
+        apex = np.where(np.isfinite(apex).all(axis=1)[:, None], apex, 0.5 * (cp[:, 0] + cp[:, 3]))
+        points[curved] = (cp[:, 0] + cp[:, 3] + apex) / 3.0
+    return points
 
 
 def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.ndarray, error: np.ndarray,
                 size_of, target: int, *, min_area: float = 0.0, bits: int | None = None) -> np.ndarray:
-    """Refinement vertices (P, 2) float64 that fill a byte target: the centroids of the triangles to split, in
-    decreasing order of the error summed in them (``refinement_points`` with every triangle allowed), as many as
+    """Refinement points (P, 2) float64 that fill a byte target: those of the triangles to split
+    (``refinement_points``, every triangle allowed), in decreasing order of the error summed in them, as many as
     keep the file within ``FILL`` × ``target`` bytes.
 
     A candidate count is priced by the file of ``model`` carried onto the refined mesh (``build_mesh`` with

@@ -180,6 +180,42 @@ def test_fill_points_spend_what_the_target_leaves(scene):
     assert size_of(carried) <= FILL * 1.3 * now
 
 
+def test_refinement_along_a_curve_halves_its_piece(scene):
+    """Error in a curved triangle alone: the refinement's point halves that triangle's piece when the mesh is
+    rebuilt (one more curved piece, the curve drawn as before), instead of the curve staying as it is."""
+    import numpy as np
+    import torch
+
+    from dfc.codec import check_domain
+    from dfc.field.layout import build_layout
+    from dfc.field.locate import PointLocator
+    from dfc.geometry import bezier
+    from dfc.rate import build_mesh, refinement_points
+    from dfc.render import window_points
+
+    curves = check_domain(scene.curves, 64, 64, fit=True)
+    settings = EncodeSettings(max_triangles=300)
+    mesh = build_mesh(curves, settings)
+    xy = window_points(curves.domain, 256, 256)
+    locator = PointLocator(mesh.vertices, mesh.triangles, mesh.domain)
+    tri = locator(locator.clamp(torch.from_numpy(xy)))[0].numpy()
+    piece = build_layout(mesh).triangle_curve
+    area = np.bincount(tri, minlength=mesh.n_triangles)
+    target = int(np.argmax(np.where(piece >= 0, area, -1)))  # the curved triangle holding the most points
+    err = (tri == target).astype(np.float64)
+    points = refinement_points(mesh, xy, err, most=1)
+    assert len(points) == 1
+    cp = mesh.curve_control_points[piece[target]]
+    apex = bezier.tangent_apex(cp[None])[0]
+    np.testing.assert_allclose(points[0], (cp[0] + cp[3] + apex) / 3.0)
+    refined = build_mesh(curves, settings, extra_points=points)
+    refined.validate()
+    assert len(refined.curve_control_points) == len(mesh.curve_control_points) + 1
+    ends = refined.curve_control_points[:, [0, 3]].reshape(-1, 2)
+    middle = bezier.evaluate(cp[None], np.array([0.5]))[0]
+    assert np.hypot(*(ends - middle).T).min() < 1e-3  # the new endpoint is the piece's middle (mesh-quantised)
+
+
 @pytest.mark.slow
 def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewer(scene, tmp_path):
     import re

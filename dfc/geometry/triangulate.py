@@ -8,7 +8,8 @@ two corners are the piece's endpoints. The recipe:
    are cut into equal parts, so that long straight curves get vertices (and features) along them;
 2. *tangent triangles* (A, X, B), X where the end tangents meet, contain their pieces. Conflict loop:
    halve (``dfc.geometry.bezier.split``) every piece whose tangent triangle leaves the domain, overlaps another
-   tangent triangle, crosses a line piece or contains a vertex, until none does;
+   tangent triangle, crosses a line piece or contains a vertex, until none does; then each refinement point
+   (``extra_points``) inside a tangent triangle halves that piece once;
 3. density: refine a chord-only constrained Delaunay triangulation (pythoncdt) to the size target and
    keep its Steiner points that are off the constraints and outside every tangent triangle;
 4. final CDT of the domain border, line pieces and chords; only where the triangle beside a chord does
@@ -52,6 +53,8 @@ GRID_SNAP = 2.0
 (or ``tol.snap_rel`` of the diagonal if more): closer curve vertices could round to one grid point."""
 
 _MAX_ROUNDS = 60  # conflict-loop rounds; each halves the offending pieces
+_MIN_HALVED_CHORD = 1e-4  # share of the domain's diagonal under which a refinement point halves no piece
+_HALVING_TRIANGLES = 4  # triangles a halving may add (its middle vertex and an apex) beyond max_triangles
 _MAX_MIN_ANGLE = 34.0  # Ruppert-style refinement terminates for angle bounds below about 34°
 _STEINER_PER_AREA = 0.8  # Steiner vertices inserted per (domain area / area bound), measured on pythoncdt
 _EQUILATERAL = np.sqrt(3.0) / 4.0  # area of the equilateral triangle with unit edges
@@ -87,9 +90,10 @@ def triangulate(
     min_angle : float
         Smallest-angle target in degrees for the Steiner points (0 to 34; 0 switches it off).
     extra_points : (M, 2) float64, optional
-        Further vertices (error-driven refinement), added to the Steiner points the size knobs give (which
-        ``max_triangles`` alone caps) except where one would lie in a curved piece's tangent triangle, outside the
-        domain's interior, or within ``tol.snap_rel`` of the diagonal of an input vertex or constraint.
+        Error-driven refinement. A point inside a curved piece's tangent triangle halves that piece, once, in order
+        (``_halve_at``); the others are further vertices, added to the Steiner points the size knobs give (which
+        ``max_triangles`` alone caps) except where one would lie in a tangent triangle, outside the domain's
+        interior, or within ``tol.snap_rel`` of the diagonal of an input vertex or constraint.
     lattice_bits : int, optional
         Snap the free vertices (Steiner and ``extra_points``) to a sub-lattice of the ``lattice_bits`` grid of
         ``dfc.io.meshcodec`` (coordinates ``min(k · 2**s, 2**bits - 1)`` grid steps; ``2**s`` steps at most the
@@ -98,7 +102,8 @@ def triangulate(
         the clean-up merges those closer than ``GRID_SNAP`` grid steps.
     stats : dict, optional
         Filled with timings in seconds (``clean_s``, ``conflict_s``, ``density_s``, ``cdt_s``) and counts
-        (``pieces_in``, ``pieces_clean``, ``pieces_final``, ``apexes``, ``steiner``, ``vertices``, ``triangles``).
+        (``pieces_in``, ``pieces_clean``, ``pieces_final``, ``halved``, ``apexes``, ``steiner``, ``vertices``,
+        ``triangles``).
 
     Returns
     -------
@@ -125,8 +130,17 @@ def triangulate(
     clock = time.perf_counter()
     domain, eps = pieces.domain, tol.touch_rel * pieces.diagonal
     lines, line_piece, cp, degree, curve_piece, apex = _separate_pieces(pieces, eps)
+    extra = np.zeros((0, 2)) if extra_points is None else np.asarray(extra_points, np.float64).reshape(-1, 2)
+    n_pieces = len(cp)
+    cp, degree, curve_piece, extra = _halve_at(extra, cp, degree, curve_piece, apex, eps, domain)
+    if len(cp) > n_pieces:
+        cp, degree, curve_piece, apex = _separate(cp, degree, curve_piece, lines, domain, eps)
     stats["conflict_s"] = time.perf_counter() - clock
+    stats["halved"] = len(cp) - n_pieces
     stats["pieces_final"] = len(lines) + len(cp)
+    # the Steiner points still make way for the pieces halvings add, but like refinement vertices the halvings
+    # themselves may go over the cap
+    cap = None if max_triangles is None else max_triangles + _HALVING_TRIANGLES * stats["halved"]
 
     clock = time.perf_counter()
     points, line_edges, line_piece, chords = _constraint_graph(domain, lines, line_piece, cp)
@@ -134,7 +148,7 @@ def triangulate(
     fixed = np.concatenate([line_edges, chords])
     n_border = int(_on_border(points, domain).sum())
     floor_count = 2 * len(points) - n_border - 2
-    if max_triangles is not None and floor_count > max_triangles:
+    if cap is not None and floor_count > cap:
         raise TriangleBudgetError(
             f"triangulate: the {len(pieces)} cleaned-up pieces alone need at least {floor_count} triangles, "
             f"more than max_triangles = {max_triangles}", floor_count
@@ -152,9 +166,9 @@ def triangulate(
     clock = time.perf_counter()
     build = partial(_final_mesh, points, line_edges=line_edges, line_piece=line_piece, chords=chords, cp=cp,
                     degree=degree, curve_piece=curve_piece, apex=apex, domain=domain, eps=eps)
-    mesh, n_apex, steiner = _within_budget(build, steiner, max_triangles)
-    if extra_points is not None and len(extra_points):
-        extra = np.asarray(extra_points, np.float64).reshape(-1, 2)
+    mesh, n_apex, steiner = _within_budget(build, steiner, max_triangles, cap)
+    stats["extra"] = 0
+    if len(extra):
         if shift is not None:
             extra = _snap(extra, domain, lattice_bits, shift)
         extra = _free_points(extra, points, steiner, lines, cp, tangent, domain, eps)
@@ -188,6 +202,39 @@ def _separate_pieces(pieces: Curves, eps: float):
     return lines, np.flatnonzero(is_line), cp, degree, curve_piece, apex
 
 
+def _halve_at(points, cp, degree, piece, apex, eps, domain):
+    """Refinement along the curves: each of ``points`` (M, 2) that lies in a curved piece's tangent triangle halves
+    the first piece (in the current order) whose tangent triangle holds it, the points taken in order, so points
+    proposed in the halves of an earlier round's pieces halve those halves; pieces whose chord is under
+    ``_MIN_HALVED_CHORD`` of the domain's diagonal stay whole. ``cp`` (C, 4, 2), ``degree``, ``piece`` (C,),
+    ``apex`` (C, 2) as ``_separate`` returns them. Returns the pieces' ``cp``, ``degree``, ``piece`` (halves in
+    their parent's place) and the points in no tangent triangle (M', 2)."""
+    if not len(points) or not len(cp):
+        return cp, degree, piece, points
+    tri = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
+    i, k = _box_pairs(tri.min(axis=1), tri.max(axis=1), points, points)
+    held = np.zeros(len(points), dtype=bool)
+    held[k[(_signed_edges(tri[i], points[k]) >= -eps).all(axis=1)]] = True
+    x0, y0, x1, y1 = domain
+    shortest = _MIN_HALVED_CHORD * np.hypot(x1 - x0, y1 - y0)
+    for p in points[held]:
+        tri = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
+        inside = (_signed_edges(tri, np.broadcast_to(p, (len(cp), 2))) >= -eps).all(axis=1)
+        inside &= np.hypot(*(cp[:, 3] - cp[:, 0]).T) >= shortest
+        if not inside.any():
+            continue
+        c = int(np.flatnonzero(inside)[0])
+        left, right = bezier.split(cp[c : c + 1], np.array([0.5]))
+        halves = np.concatenate([left, right])
+        x = bezier.tangent_apex(halves)
+        x = np.where(np.isfinite(x).all(axis=1)[:, None], x, 0.5 * (halves[:, 0] + halves[:, 3]))
+        cp = np.concatenate([cp[:c], halves, cp[c + 1 :]])
+        apex = np.concatenate([apex[:c], x, apex[c + 1 :]])
+        degree = np.concatenate([degree[:c], degree[c : c + 1], degree[c : c + 1], degree[c + 1 :]])
+        piece = np.concatenate([piece[:c], piece[c : c + 1], piece[c : c + 1], piece[c + 1 :]])
+    return cp, degree, piece, points[~held]
+
+
 def _constraint_graph(domain, lines, line_piece, cp):
     """The CDT's input vertices and constraint edges: (points (V, 2) — the domain's corners and every piece's
     endpoints, deduplicated —, line edges (L, 2) into points (duplicates dropped), their pieces (L,), chords (C, 2))."""
@@ -204,15 +251,17 @@ def _constraint_graph(domain, lines, line_piece, cp):
     return points, line_edges, line_piece[first], chords
 
 
-def _within_budget(build, steiner: np.ndarray, max_triangles: int | None):
+def _within_budget(build, steiner: np.ndarray, max_triangles: int | None, cap: int | None = None):
     """(mesh, apexes, Steiner points used): ``build(steiner)``, dropping Steiner points at random (seeded) until the
-    mesh has at most ``max_triangles`` triangles; ``TriangleBudgetError`` when the curves alone need more."""
+    mesh has at most ``max_triangles`` triangles; ``TriangleBudgetError`` when the curves alone need more than
+    ``cap`` (default ``max_triangles``)."""
+    cap = max_triangles if cap is None else cap
     mesh, n_apex = build(steiner)
     while max_triangles is not None and mesh.n_triangles > max_triangles and len(steiner):
         keep = max(0, len(steiner) - (mesh.n_triangles - max_triangles + 1) // 2 - 1)
         steiner = steiner[np.sort(np.random.default_rng(0).permutation(len(steiner))[:keep])]
         mesh, n_apex = build(steiner)
-    if max_triangles is not None and mesh.n_triangles > max_triangles:
+    if cap is not None and mesh.n_triangles > cap:
         raise TriangleBudgetError(
             f"triangulate: the curves alone need {mesh.n_triangles} triangles, more than max_triangles = {max_triangles}",
             mesh.n_triangles,

@@ -116,7 +116,7 @@ def test_fuzzed_curves_mesh_validate_and_keep_every_piece(curves, density):
 @settings(max_examples=30, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(curves=curve_sets(), n_extra=st.integers(1, 60), seed=st.integers(0, 2**16))
 def test_fuzzed_extra_points_keep_the_mesh_valid_and_the_curves(curves, n_extra, seed):
-    """Refinement vertices anywhere (also on curves, outside the domain, on top of each other): a valid mesh that
+    """Refinement points anywhere (also on curves, outside the domain, on top of each other): a valid mesh that
     still draws the curves, with every kept point a vertex."""
     base_stats = {}
     try:
@@ -133,11 +133,60 @@ def test_fuzzed_extra_points_keep_the_mesh_valid_and_the_curves(curves, n_extra,
     mesh = triangulate(curves, max_triangles=200, extra_points=extra, stats=stats)
     mesh.validate()
     assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
-    # every kept point is a vertex besides the base mesh's (apexes of curved pieces come and go with the points)
-    assert mesh.n_vertices - stats["apexes"] >= base.n_vertices - base_stats["apexes"] + stats["extra"]
+    # every kept point is a vertex besides the base mesh's (apexes of curved pieces come and go with the points;
+    # a point in a tangent triangle halves a piece instead, which changes the rest of the mesh)
+    if not stats["halved"]:
+        assert mesh.n_vertices - stats["apexes"] >= base.n_vertices - base_stats["apexes"] + stats["extra"]
     if stats["extra"]:
         d, _ = cKDTree(mesh.vertices).query(extra)
         assert (d < 1e-12).sum() >= stats["extra"]
+
+
+@settings(max_examples=25, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
+@given(curves=curve_sets(), picks=st.lists(st.integers(0, 10**6), min_size=1, max_size=6))
+def test_fuzzed_points_in_tangent_triangles_halve_their_pieces(curves, picks):
+    """Refinement points at the centroids of curved pieces' tangent triangles, proposed round after round: each
+    halves its piece (one more curved piece per point), the mesh stays valid and draws the same curves."""
+    try:
+        mesh = triangulate(curves, max_triangles=400)
+    except (TriangleBudgetError, MeshError) as e:
+        assume(isinstance(e, MeshError) and not isinstance(e, TriangleBudgetError)
+               and not re.search("tangent at their shared endpoint|cannot separate|would be split", str(e)))
+        raise
+    assume(len(mesh.curve_control_points))
+    extra = np.zeros((0, 2))
+    for pick in picks:
+        cp = mesh.curve_control_points[pick % len(mesh.curve_control_points)]
+        centroid = (cp[0] + cp[3] + bezier.tangent_apex(cp[None])[0]) / 3.0
+        assume(np.isfinite(centroid).all() and np.hypot(*(cp[3] - cp[0])) > 1e-3)
+        extra = np.concatenate([extra, centroid[None]])
+        stats = {}
+        halved = triangulate(curves, max_triangles=400, extra_points=extra, stats=stats)
+        halved.validate()
+        assert_same_drawing(curves, halved, 1e-3 * curves.diagonal)
+        assert len(halved.curve_control_points) == len(mesh.curve_control_points) + 1
+        assert stats["halved"] == len(extra) and stats["extra"] == 0
+        mesh = halved
+
+
+def test_a_point_in_a_tangent_triangle_halves_the_piece_and_keeps_its_geometry():
+    """A quadratic arch: the centroid of its tangent triangle cuts it at t = 1/2, the halves draw the same arch; a
+    point outside every tangent triangle is a vertex instead."""
+    curves = make_curves([(2, [(0.5, 0.5), (2.0, 1.2), (3.5, 0.5)])])
+    base = triangulate(curves, max_triangles=100)
+    assert len(base.curve_control_points) == 1
+    cp = base.curve_control_points[0]
+    centroid = (cp[0] + cp[3] + bezier.tangent_apex(cp[None])[0]) / 3.0
+    mesh = triangulate(curves, max_triangles=100, extra_points=[centroid, (3.8, 2.8)])
+    mesh.validate()
+    assert len(mesh.curve_control_points) == 2
+    halves = mesh.curve_control_points[np.argsort(mesh.curve_control_points[:, 0, 0])]
+    np.testing.assert_allclose(halves[0, 3], bezier.evaluate(cp[None], np.array([0.5]))[0], atol=1e-12)
+    t = np.linspace(0.0, 1.0, 9)
+    np.testing.assert_allclose(bezier.evaluate(np.repeat(halves[:1], 9, axis=0), t),
+                               bezier.evaluate(np.repeat(cp[None], 9, axis=0), t / 2), atol=1e-12)
+    assert not np.isclose(mesh.vertices, centroid).all(axis=1).any()
+    assert np.isclose(mesh.vertices, (3.8, 2.8)).all(axis=1).any()
 
 
 # ---------------------------------------------------------------------------------------------- fixed cases
@@ -209,7 +258,7 @@ def _cross(u, v):
 
 
 def test_density_knobs():
-    curves = make_curves([(2, [(0.5, 0.5), (2.0, 2.5), (3.5, 0.5)])])
+    curves = make_curves([(2, [(0.5, 0.5), (2.0, 1.2), (3.5, 0.5)])])
     default = triangulate(curves)
     fine = triangulate(curves, max_area=0.002)
     by_length = triangulate(curves, edge_length=0.1)
