@@ -587,14 +587,15 @@ def _mesh_and_fit(fit_fn, signal, curves: Curves, settings: EncodeSettings, chan
 def _refine(model, fit_fn, signal, curves: Curves, settings: EncodeSettings, mesh_settings, residual,
             min_area: float, size_of, quality, fit_kw, fewer_bits: bool = False):
     """``settings.refine`` rounds of error-driven refinement of a fitted ``model``: split the triangles where
-    ``residual`` is largest (a curved triangle by halving its piece), rebuild the mesh (with ``mesh_settings``, which built the first
-    one, plus the new vertices) and refit from the current fit (``init``). Without a byte target a round splits the
-    triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most ``refine_fraction`` of them
-    (``dfc.rate.refinement_points``); with one, as many as the target still pays for (``dfc.rate.fill_points``,
-    files priced with ``size_of``), and a refit whose file still outgrows the target is redone (``_fill_within``,
-    ``fewer_bits`` as it says). With ``fewer_bits`` (the encoder chose the bits), a fill from a fit at those bits
-    prices and refits at ``dfc.rate.COARSE_FEATURE_BITS`` when they cost the fit little (``_coarse_costs_little``),
-    after a refit on the mesh the target buys at those bits (``dfc.rate.sized_mesh``) when it is the first round.
+    ``residual`` is largest (a curved triangle by halving its piece), rebuild the mesh (with ``mesh_settings``,
+    which built the first one, plus the new points) and refit from the current fit (``init``). Without a byte
+    target a round splits the triangles holding ``dfc.rate.REFINE_SHARE`` of the error, at most
+    ``refine_fraction`` of them (``dfc.rate.refinement_points``); with one, as many as the target still pays for
+    (``dfc.rate.fill_points``, files priced with ``size_of``), and a refit whose file still outgrows the target is
+    redone (``_fill_within``, ``fewer_bits`` as it says). With ``fewer_bits`` (the encoder chose the bits), a fill
+    from a fit at those bits prices and refits at ``dfc.rate.COARSE_FEATURE_BITS`` when they cost the fit little
+    (``_coarse_costs_little``), after a refit on the mesh the target buys at those bits (``dfc.rate.sized_mesh``)
+    when it is the first round.
     Stops early when no triangle is left to split, or when ``quality(model)`` reaches ``settings.target_psnr``."""
     from .rate import build_mesh, fill_points, refinement_points
 
