@@ -18,7 +18,7 @@ import torch
 from .errors import TargetBytesError, TriangleBudgetError
 from .geometry.curves import Curves
 from .geometry.mesh import Mesh
-from .geometry.triangulate import DEFAULT_TRIANGLES, triangulate
+from .geometry.triangulate import DEFAULT_TRIANGLES, halving_points, triangulate
 
 __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
            "FILL_CARRY_POINTS", "FILL_RETRIES", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE",
@@ -90,11 +90,10 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
     """Points (P, 2) float64 that split the triangles to split next (``dfc.geometry.triangulate``'s
     ``extra_points``): ``error`` (M,) ≥ 0 at points ``xy`` (M, 2) is summed per triangle; the triangles with the
     largest sums, until they hold ``share`` of the total, at most ``most``, leaving out triangles below ``min_area``.
-    A triangle's point is its centroid; a curved triangle's is the centroid of its piece's tangent triangle, which
-    halves the piece (the curve's geometry unchanged)."""
+    A triangle's point is its centroid; a curved triangle's is its piece's ``halving_points``, which halves the piece
+    (the curve's geometry unchanged)."""
     from .field.layout import build_layout
     from .field.locate import PointLocator
-    from .geometry.bezier import tangent_apex
     from .geometry.plane import triangle_areas
 
     locator = PointLocator(mesh.vertices, mesh.triangles, mesh.domain)
@@ -110,12 +109,7 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
     chosen = chosen[total[chosen] > 0]
     points = mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
     piece = build_layout(mesh).triangle_curve[chosen]
-    curved = piece >= 0
-    if curved.any():
-        cp = mesh.curve_control_points[piece[curved]]
-        apex = tangent_apex(cp)
-        apex = np.where(np.isfinite(apex).all(axis=1)[:, None], apex, 0.5 * (cp[:, 0] + cp[:, 3]))
-        points[curved] = (cp[:, 0] + cp[:, 3] + apex) / 3.0
+    points[piece >= 0] = halving_points(mesh.curve_control_points[piece[piece >= 0]])
     return points
 
 

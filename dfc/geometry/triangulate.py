@@ -38,8 +38,8 @@ from .mesh import Mesh, min_side_distance
 from .plane import cross
 from .tolerances import tol
 
-__all__ = ["triangulate", "constrained_delaunay", "nominal_edge", "retriangulate", "DEFAULT_TRIANGLES", "GRID_SNAP",
-           "STEINER_STEPS_PER_EDGE"]
+__all__ = ["triangulate", "constrained_delaunay", "halving_points", "nominal_edge", "retriangulate", "DEFAULT_TRIANGLES",
+           "GRID_SNAP", "STEINER_STEPS_PER_EDGE"]
 
 DEFAULT_TRIANGLES = 2000
 """Triangle count the default density aims at over the whole domain (area bound = domain area / 1000)."""
@@ -205,10 +205,10 @@ def _separate_pieces(pieces: Curves, eps: float):
 def _halve_at(points, cp, degree, piece, apex, eps, domain):
     """Refinement along the curves: each of ``points`` (M, 2) that lies in a curved piece's tangent triangle halves
     the first piece (in the current order) whose tangent triangle holds it, the points taken in order, so points
-    proposed in the halves of an earlier round's pieces halve those halves; pieces whose chord is under
-    ``_MIN_HALVED_CHORD`` of the domain's diagonal stay whole. ``cp`` (C, 4, 2), ``degree``, ``piece`` (C,),
-    ``apex`` (C, 2) as ``_separate`` returns them. Returns the pieces' ``cp``, ``degree``, ``piece`` (halves in
-    their parent's place) and the points in no tangent triangle (M', 2)."""
+    proposed in the halves of an earlier round's pieces halve those halves (``halving_points``); pieces whose chord
+    is under ``_MIN_HALVED_CHORD`` of the domain's diagonal stay whole. ``cp`` (C, 4, 2), ``degree``, ``piece``
+    (C,), ``apex`` (C, 2) as ``_separate`` returns them. Returns the pieces' ``cp``, ``degree``, ``piece`` (halves
+    in their parent's place) and the points in no tangent triangle (M', 2)."""
     if not len(points) or not len(cp):
         return cp, degree, piece, points
     tri = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
@@ -218,7 +218,6 @@ def _halve_at(points, cp, degree, piece, apex, eps, domain):
     x0, y0, x1, y1 = domain
     shortest = _MIN_HALVED_CHORD * np.hypot(x1 - x0, y1 - y0)
     for p in points[held]:
-        tri = _ccw_triangles(cp[:, 0], apex, cp[:, 3])
         inside = (_signed_edges(tri, np.broadcast_to(p, (len(cp), 2))) >= -eps).all(axis=1)
         inside &= np.hypot(*(cp[:, 3] - cp[:, 0]).T) >= shortest
         if not inside.any():
@@ -226,13 +225,29 @@ def _halve_at(points, cp, degree, piece, apex, eps, domain):
         c = int(np.flatnonzero(inside)[0])
         left, right = bezier.split(cp[c : c + 1], np.array([0.5]))
         halves = np.concatenate([left, right])
-        x = bezier.tangent_apex(halves)
-        x = np.where(np.isfinite(x).all(axis=1)[:, None], x, 0.5 * (halves[:, 0] + halves[:, 3]))
-        cp = np.concatenate([cp[:c], halves, cp[c + 1 :]])
-        apex = np.concatenate([apex[:c], x, apex[c + 1 :]])
-        degree = np.concatenate([degree[:c], degree[c : c + 1], degree[c : c + 1], degree[c + 1 :]])
-        piece = np.concatenate([piece[:c], piece[c : c + 1], piece[c : c + 1], piece[c + 1 :]])
+        x = _apexes(halves)[0]
+
+        def splice(old, new):
+            return np.concatenate([old[:c], new, old[c + 1 :]])
+
+        cp, tri = splice(cp, halves), splice(tri, _ccw_triangles(halves[:, 0], x, halves[:, 3]))
+        degree, piece = splice(degree, degree[[c, c]]), splice(piece, piece[[c, c]])
     return cp, degree, piece, points[~held]
+
+
+def halving_points(cp: np.ndarray) -> np.ndarray:
+    """(C, 2) float64: for curved pieces ``cp`` (C, 4, 2), the centroid of each one's tangent triangle, the point that
+    passed in ``triangulate``'s ``extra_points`` halves that piece."""
+    return (cp[:, 0] + cp[:, 3] + _apexes(cp)[0]) / 3.0
+
+
+def _apexes(cp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(apexes (C, 2), found (C,) bool) of curved pieces ``cp`` (C, 4, 2): ``bezier.tangent_apex``, the chord's
+    middle where the end tangents are parallel (``found`` False)."""
+    apex = bezier.tangent_apex(cp)
+    found = np.isfinite(apex).all(axis=1)
+    apex[~found] = 0.5 * (cp[~found, 0] + cp[~found, 3])
+    return apex, found
 
 
 def _constraint_graph(domain, lines, line_piece, cp):
@@ -444,10 +459,8 @@ def _separate(cp, degree, piece, lines, domain, eps):
     active = np.ones(len(cp), dtype=bool)
     for _ in range(_MAX_ROUNDS):
         a, b = cp[:, 0], cp[:, 3]
-        apex = bezier.tangent_apex(cp)
-        bad = ~np.isfinite(apex).all(axis=1)
-        apex[bad] = 0.5 * (a[bad] + b[bad])
-        bad |= ((apex < lo_d - eps) | (apex > hi_d + eps)).any(axis=1)
+        apex, found = _apexes(cp)
+        bad = ~found | ((apex < lo_d - eps) | (apex > hi_d + eps)).any(axis=1)
         tri = _ccw_triangles(a, apex, b)
         lo, hi = tri.min(axis=1), tri.max(axis=1)
         check = np.flatnonzero(active)

@@ -14,7 +14,7 @@ from dfc.errors import MeshError, TriangleBudgetError
 from dfc.geometry import bezier
 from dfc.geometry.curves import Curves, elevate
 from dfc.geometry.sources import read_curves
-from dfc.geometry.triangulate import _box_pairs, triangulate
+from dfc.geometry.triangulate import _box_pairs, halving_points, triangulate
 
 DOMAIN = (0.0, 0.0, 4.0, 3.0)
 
@@ -157,8 +157,8 @@ def test_fuzzed_points_in_tangent_triangles_halve_their_pieces(curves, picks):
     extra = np.zeros((0, 2))
     for pick in picks:
         cp = mesh.curve_control_points[pick % len(mesh.curve_control_points)]
-        centroid = (cp[0] + cp[3] + bezier.tangent_apex(cp[None])[0]) / 3.0
-        assume(np.isfinite(centroid).all() and np.hypot(*(cp[3] - cp[0])) > 1e-3)
+        centroid = halving_points(cp[None])[0]
+        assume(np.isfinite(bezier.tangent_apex(cp[None])).all() and np.hypot(*(cp[3] - cp[0])) > 1e-3)
         extra = np.concatenate([extra, centroid[None]])
         stats = {}
         halved = triangulate(curves, max_triangles=400, extra_points=extra, stats=stats)
