@@ -250,6 +250,36 @@ def _apexes(cp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return apex, found
 
 
+def _join_forks(a, b, apex, found, eps):
+    """(apexes (C, 2), moved (C,) bool): two pieces leaving a shared endpoint along one tangent ray (a fork whose
+    branches part to either side) have their apexes on that ray, and the nearer would lie on the other's apex edge,
+    which no triangulation keeps whole; the nearer moves out to the farther, so the two tangent triangles share that
+    edge (a tangent triangle grown along its ray still holds its piece). ``a``, ``b``, ``apex`` (C, 2) end points and
+    apexes, ``found`` (C,) whether the apex is the end tangents' meeting point (the others are left alone)."""
+    apex, moved = apex.copy(), np.zeros(len(apex), dtype=bool)
+    ends = np.concatenate([a, b])
+    piece = np.tile(np.arange(len(apex)), 2)
+    _, group = np.unique(ends, axis=0, return_inverse=True)
+    order = np.argsort(group.reshape(-1), kind="stable")
+    group = group.reshape(-1)[order]
+    for step in range(1, len(order)):
+        same = np.flatnonzero(group[step:] == group[:-step])
+        if not len(same):
+            break
+        i, j = piece[order[same]], piece[order[same + step]]
+        at = ends[order[same]]
+        keep = found[i] & found[j] & (i != j) & ~moved[i] & ~moved[j]
+        i, j, at = i[keep], j[keep], at[keep]
+        near_i = np.hypot(*(apex[i] - at).T) <= np.hypot(*(apex[j] - at).T)
+        near, far = np.where(near_i, i, j), np.where(near_i, j, i)
+        join = _segment_distance(apex[near], np.stack([at, apex[far]], axis=1)) <= eps
+        join &= ~np.all(apex[near] == apex[far], axis=1)
+        near, far = near[join], far[join]
+        near, first = np.unique(near, return_index=True)  # one move per piece and round
+        apex[near], moved[near] = apex[far[first]], True
+    return apex, moved
+
+
 def _constraint_graph(domain, lines, line_piece, cp):
     """The CDT's input vertices and constraint edges: (points (V, 2) — the domain's corners and every piece's
     endpoints, deduplicated —, line edges (L, 2) into points (duplicates dropped), their pieces (L,), chords (C, 2))."""
@@ -460,10 +490,11 @@ def _separate(cp, degree, piece, lines, domain, eps):
     for _ in range(_MAX_ROUNDS):
         a, b = cp[:, 0], cp[:, 3]
         apex, found = _apexes(cp)
+        apex, moved = _join_forks(a, b, apex, found, eps)
         bad = ~found | ((apex < lo_d - eps) | (apex > hi_d + eps)).any(axis=1)
         tri = _ccw_triangles(a, apex, b)
         lo, hi = tri.min(axis=1), tri.max(axis=1)
-        check = np.flatnonzero(active)
+        check = np.flatnonzero(active | moved)
         conflict = np.zeros(len(cp), dtype=bool)
 
         oi, oj = _box_pairs(lo[check], hi[check], lo[check], hi[check], same=True)
@@ -481,6 +512,7 @@ def _separate(cp, degree, piece, lines, domain, eps):
         d = _signed(seg[:, 0], seg[:, 1], tri[i])
         apart = _separated(tri[i], seg, eps) | (d.max(axis=1) <= eps) | (d.min(axis=1) >= -eps)
         bad[i[~apart]] = True
+        bad[i[_segment_distance(apex[i], seg) <= eps]] = True  # an apex (a CDT vertex) on a line splits it
 
         points = np.unique(np.concatenate([corners, lines.reshape(-1, 2), a, b]), axis=0)
         i, k = _box_pairs(lo[check], hi[check], points, points)
@@ -539,6 +571,13 @@ def _signed(p, q, pts) -> np.ndarray:
     """Signed distances of pts (N, K, 2) to the lines p -> q ((N, 2) each), left positive -> (N, K)."""
     d = q - p
     return cross(d[:, None], pts - p[:, None]) / np.hypot(*d.T)[:, None]
+
+
+def _segment_distance(p, seg) -> np.ndarray:
+    """Distances of points p (N, 2) to segments seg (N, 2, 2) -> (N,)."""
+    d = seg[:, 1] - seg[:, 0]
+    t = np.clip(((p - seg[:, 0]) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), np.finfo(float).tiny), 0.0, 1.0)
+    return np.hypot(*(seg[:, 0] + t[:, None] * d - p).T)
 
 
 def _signed_edges(tri, p) -> np.ndarray:

@@ -286,6 +286,18 @@ def test_clip_at_border_and_drop_piece_on_border():
     np.testing.assert_allclose(out.t_range[0], [1 / 6, 1.0], atol=1e-12)
 
 
+def test_a_piece_running_inside_the_snap_band_goes_where_it_hugs_the_border():
+    """A quadratic along the bottom border, closer than the merge distance over most of its length: the part cut at
+    the band's edge (reaching the edge only up to a rounding) lies on the border and goes; what leaves the band
+    stays."""
+    snap = tol.snap_rel * np.hypot(100.0, 50.0)
+    quad = [[[87.5, 0.0], [0.0, 0.0], [0.0, 3.5 * snap]]]
+    out = clean(_single(quad, 2))
+    depth = np.minimum(bz.flatten(out.control_points, 8)[..., 1], 100.0 - bz.flatten(out.control_points, 8)[..., 0])
+    assert len(out) >= 1 and (depth.max(axis=1) > 1.5 * snap).all()
+    assert out.control_points[:, :, 0].max() < 0.5 * 87.5  # the hugging part is gone
+
+
 def test_lens_and_d_are_split_until_no_chord_is_shared():
     a, b = [10.0, 10.0], [60.0, 10.0]
     lens = clean(_single([[a, [35, 30], b], [a, [35, -5], b]], 2))

@@ -171,6 +171,35 @@ def test_fuzzed_points_in_tangent_triangles_halve_their_pieces(curves, picks):
         mesh = halved
 
 
+def test_an_apex_on_a_line_piece_is_separated_from_it():
+    """A quadratic that the clean-up cuts at its lowest point, where one half's control point (its tangent triangle's
+    apex, a vertex of the CDT) lands on a line piece the curve never reaches (found by fuzzing): the half is halved
+    until no apex lies on the line, instead of the CDT cutting the line at the apex."""
+    curves = make_curves([(1, [(0.0, 1.125), (1.0, 1.125)]), (2, [(1.0, 2.625), (1.0, 0.0), (1e-9, 2.25)])])
+    mesh = triangulate(curves, max_triangles=200)
+    mesh.validate()
+    assert len(mesh.curve_control_points) >= 2
+    assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
+
+
+def test_a_tangent_fork_shares_its_apex_edge():
+    """Two quadratics leave one point along one tangent and part to either side: their apexes lie on one ray, and
+    the nearer one used to lie on the other's apex edge ("would be split"); now the two tangent triangles share the
+    farther apex, each still holding its piece, and halving one branch keeps it so."""
+    curves = make_curves([(2, [(0.5, 1.5), (1.5, 1.5), (2.5, 2.5)]), (2, [(0.5, 1.5), (2.5, 1.5), (3.5, 0.5)])])
+    mesh = triangulate(curves, max_triangles=200)
+    mesh.validate()
+    assert len(mesh.curve_control_points) == 2
+    apexes = [mesh.vertices[t][~np.isin(t, mesh.curve_endpoints[k])] for k, t in
+              enumerate(mesh.triangles[mesh.curved_triangles])]
+    np.testing.assert_array_equal(apexes[0], apexes[1])  # one shared vertex, the farther apex
+    np.testing.assert_allclose(apexes[0], [[2.5, 1.5]], atol=1e-5)
+    assert_same_drawing(curves, mesh, 1e-3 * curves.diagonal)
+    halved = triangulate(curves, max_triangles=200, extra_points=halving_points(mesh.curve_control_points[:1]))
+    halved.validate()
+    assert len(halved.curve_control_points) == 3
+
+
 def test_a_point_in_a_tangent_triangle_halves_the_piece_and_keeps_its_geometry():
     """A quadratic arch: the centroid of its tangent triangle cuts it at t = 1/2, the halves draw the same arch; a
     point outside every tangent triangle is a vertex instead."""
