@@ -21,13 +21,19 @@ from .geometry.mesh import Mesh
 from .geometry.triangulate import DEFAULT_TRIANGLES, halving_points, triangulate
 
 __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
-           "FILL_CARRY_POINTS", "FILL_RETRIES", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE", "REFINE_SHARE",
-           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "features_at", "fill_points",
-           "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size", "size_at",
-           "sized_mesh"]
+           "FILL_CARRY_POINTS", "FILL_RETRIES", "HALVING_COST", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
+           "REFINE_SHARE", "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "features_at",
+           "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size",
+           "size_at", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
+HALVING_COST = 3.0
+"""Weight of halving a curved piece against a centroid split when ``refinement_points`` ranks triangles by error per
+cost. In file bytes a halving costs 5–9 splits (a curve vertex with a feature vector per side, two more control
+points, new tangent-triangle apexes: 42–76 bytes against 8–9), but it also sharpens the jump, which the 1× error does
+not see: at 6 the zoom windows' edges lost up to 1 dB, at 3 they did not (CHANGELOG.md, "Refinement ranked by error
+per byte")."""
 REFINE_SHARE = 0.5
 """A refinement round splits the triangles holding this share of the fit's squared error (at most a set number)."""
 NOISY_SAMPLES_PER_TRIANGLE = 500
@@ -88,10 +94,11 @@ def build_mesh(curves: Curves, settings, *, extra_points=None, stats: dict | Non
 def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: float = REFINE_SHARE,
                       most: int, min_area: float = 0.0) -> np.ndarray:
     """Points (P, 2) float64 that split the triangles to split next (``dfc.geometry.triangulate``'s
-    ``extra_points``): ``error`` (M,) ≥ 0 at points ``xy`` (M, 2) is summed per triangle; the triangles with the
-    largest sums, until they hold ``share`` of the total, at most ``most``, leaving out triangles below ``min_area``.
-    A triangle's point is its centroid; a curved triangle's is its piece's ``halving_points``, which halves the piece
-    (the curve's geometry unchanged)."""
+    ``extra_points``): ``error`` (M,) ≥ 0 at points ``xy`` (M, 2) is summed per triangle; the triangles in
+    decreasing order of that sum per unit of cost (1, ``HALVING_COST`` for a curved triangle), until they hold
+    ``share`` of the total, at most ``most``, leaving out triangles below ``min_area``. A triangle's point is its
+    centroid; a curved triangle's is its piece's ``halving_points``, which halves the piece (the curve's geometry
+    unchanged)."""
     from .field.layout import build_layout
     from .field.locate import PointLocator
     from .geometry.plane import triangle_areas
@@ -101,14 +108,14 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
         tri, _ = locator(locator.clamp(torch.from_numpy(np.asarray(xy, np.float64))))
     total = np.bincount(tri.cpu().numpy(), weights=np.asarray(error, np.float64), minlength=mesh.n_triangles)
     total[triangle_areas(mesh.vertices[mesh.triangles]) < min_area] = 0.0
-    order = np.argsort(-total, kind="stable")
     if most < 1 or total.sum() <= 0:
         return np.zeros((0, 2))
+    piece = build_layout(mesh).triangle_curve
+    order = np.argsort(-total / np.where(piece >= 0, HALVING_COST, 1.0), kind="stable")
     reach = np.searchsorted(np.cumsum(total[order]), share * total.sum()) + 1
     chosen = order[:min(most, reach)]
-    chosen = chosen[total[chosen] > 0]
+    chosen, piece = chosen[total[chosen] > 0], piece[chosen[total[chosen] > 0]]
     points = mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
-    piece = build_layout(mesh).triangle_curve[chosen]
     points[piece >= 0] = halving_points(mesh.curve_control_points[piece[piece >= 0]])
     return points
 
@@ -116,8 +123,8 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
 def fill_points(model, curves: Curves, mesh_settings, extra: np.ndarray, xy: np.ndarray, error: np.ndarray,
                 size_of, target: int, *, min_area: float = 0.0, bits: int | None = None) -> np.ndarray:
     """Refinement points (P, 2) float64 that fill a byte target: those of the triangles to split
-    (``refinement_points``, every triangle allowed), in decreasing order of the error summed in them, as many as
-    keep the file within ``FILL`` × ``target`` bytes.
+    (``refinement_points``, every triangle allowed), in their order (error per byte), as many as keep the file
+    within ``FILL`` × ``target`` bytes.
 
     A candidate count is priced by the file of ``model`` carried onto the refined mesh (``build_mesh`` with
     ``mesh_settings``, ``extra`` (E, 2) and the candidates; ``dfc.field.transfer.carry_over`` at up to

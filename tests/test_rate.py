@@ -216,6 +216,34 @@ def test_refinement_along_a_curve_halves_its_piece(scene):
     assert np.hypot(*(ends - middle).T).min() < 1e-3  # the new endpoint is the piece's middle (mesh-quantised)
 
 
+def test_refinement_ranks_by_error_per_byte(scene):
+    """A curved triangle's halving costs ``HALVING_COST`` centroid splits: with less than that factor more error than
+    a plain triangle it comes second, with more it comes first."""
+    import numpy as np
+    import torch
+
+    from dfc.codec import check_domain
+    from dfc.field.layout import build_layout
+    from dfc.field.locate import PointLocator
+    from dfc.rate import HALVING_COST, build_mesh, refinement_points
+    from dfc.render import window_points
+
+    curves = check_domain(scene.curves, 64, 64, fit=True)
+    mesh = build_mesh(curves, EncodeSettings(max_triangles=300))
+    xy = window_points(curves.domain, 256, 256)
+    locator = PointLocator(mesh.vertices, mesh.triangles, mesh.domain)
+    tri = locator(locator.clamp(torch.from_numpy(xy)))[0].numpy()
+    piece = build_layout(mesh).triangle_curve
+    count = np.bincount(tri, minlength=mesh.n_triangles)
+    curved = int(np.argmax(np.where(piece >= 0, count, -1)))
+    plain = int(np.argmax(np.where(piece < 0, count, -1)))
+    centroid = mesh.vertices[mesh.triangles[plain]].mean(axis=0)
+    for factor, plain_first in [(0.8 * HALVING_COST, True), (1.25 * HALVING_COST, False)]:
+        err = np.where(tri == curved, factor / count[curved], 0.0) + np.where(tri == plain, 1.0 / count[plain], 0.0)
+        first = refinement_points(mesh, xy, err, share=1.0, most=1)[0]
+        assert np.allclose(first, centroid) == plain_first
+
+
 @pytest.mark.slow
 def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewer(scene, tmp_path):
     import re
