@@ -274,10 +274,17 @@ def _join_forks(a, b, apex, found, eps):
         near, far = np.where(near_i, i, j), np.where(near_i, j, i)
         join = _segment_distance(apex[near], np.stack([at, apex[far]], axis=1)) <= eps
         join &= ~np.all(apex[near] == apex[far], axis=1)
+        ray = apex[far] - at
+        join &= cross(ray, _far_end(a, b, near, at) - at) * cross(ray, _far_end(a, b, far, at) - at) < 0  # either side
         near, far = near[join], far[join]
         near, first = np.unique(near, return_index=True)  # one move per piece and round
         apex[near], moved[near] = apex[far[first]], True
     return apex, moved
+
+
+def _far_end(a, b, k, at):
+    """(K, 2): the end of each piece ``k`` (K,) that is not the point ``at`` (K, 2); ``a``, ``b`` (C, 2) ends."""
+    return np.where(np.all(a[k] == at, axis=1)[:, None], b[k], a[k])
 
 
 def _constraint_graph(domain, lines, line_piece, cp):
