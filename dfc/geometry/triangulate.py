@@ -52,7 +52,8 @@ GRID_SNAP = 2.0
 """With ``lattice_bits``, the clean-up merges end points and intersections closer than this many steps of that grid
 (or ``tol.snap_rel`` of the diagonal if more): closer curve vertices could round to one grid point."""
 
-_MAX_ROUNDS = 60  # conflict-loop rounds; each halves the offending pieces
+_MAX_ROUNDS = 100  # conflict-loop rounds; each halves the offending pieces (pieces that cannot be separated, halved
+# down to the merge distance, about 23 halvings from the diagonal, name their conflict: in turns with a neighbour, 70)
 _MIN_HALVED_CHORD = 1e-4  # share of the domain's diagonal under which a refinement point halves no piece
 _HALVING_TRIANGLES = 4  # triangles a halving may add (its middle vertex and an apex) beyond max_triangles
 _MAX_MIN_ANGLE = 34.0  # Ruppert-style refinement terminates for angle bounds below about 34°

@@ -200,6 +200,15 @@ def test_a_tangent_fork_shares_its_apex_edge():
     assert len(halved.curve_control_points) == 3
 
 
+def test_pieces_tangent_on_one_side_are_named_not_counted_out():
+    """Two quadratics nested in the corner, tangent at their shared endpoint on one side (found by fuzzing): halving
+    in turns reaches the merge distance after about 70 rounds, and the error names the piece that cannot be separated
+    rather than the rounds spent."""
+    curves = make_curves([(2, [(0.0, 1.125), (0.0, 0.0), (1.0, 0.0)]), (2, [(0.5, 0.0), (0.0, 0.0), (0.0, 1.125)])])
+    with pytest.raises(MeshError, match="cannot separate|tangent at their shared endpoint"):
+        triangulate(curves)
+
+
 def test_a_point_in_a_tangent_triangle_halves_the_piece_and_keeps_its_geometry():
     """A quadratic arch: the centroid of its tangent triangle cuts it at t = 1/2, the halves draw the same arch; a
     point outside every tangent triangle is a vertex instead."""
