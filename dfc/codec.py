@@ -653,8 +653,8 @@ def _coarse_costs_little(model, residual, err: np.ndarray, bits: int) -> bool:
 def _fill_within(model, points: np.ndarray, refit, size_of, target: int, bits: int, fewer_bits: bool = False):
     """(refitted model, points (P, 2) it used), or (None, no points) when even the fewest fill points outgrow
     ``target``: ``refit(points, bits)`` on the fill's points (``dfc.rate.fill_points``, in decreasing order of error
-    per byte) with ``bits`` per feature. While the file is over ``target`` bytes (the refit's features cost more than the
-    carried-over ones it was priced with), at most ``FILL_RETRIES`` times, on a prefix of the points (``_cut``).
+    per byte) with ``bits`` per feature. While the file is over ``target`` bytes (the refit's features cost more than
+    the carried-over ones it was priced with), at most ``FILL_RETRIES`` times, on a prefix of the points (``_cut``).
     With ``fewer_bits``, the last retry, or the first that no cut can bring within the target, keeps the points at
     one bit fewer per feature, about a tenth of the features' bytes (``CHANGELOG.md``, "A byte target's fill stores a
     bit fewer rather than nothing")."""

@@ -114,7 +114,8 @@ def refinement_points(mesh: Mesh, xy: np.ndarray, error: np.ndarray, *, share: f
     order = np.argsort(-total / np.where(piece >= 0, HALVING_COST, 1.0), kind="stable")
     reach = np.searchsorted(np.cumsum(total[order]), share * total.sum()) + 1
     chosen = order[:min(most, reach)]
-    chosen, piece = chosen[total[chosen] > 0], piece[chosen[total[chosen] > 0]]
+    chosen = chosen[total[chosen] > 0]
+    piece = piece[chosen]
     points = mesh.vertices[mesh.triangles[chosen]].mean(axis=1)
     points[piece >= 0] = halving_points(mesh.curve_control_points[piece[piece >= 0]])
     return points

@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 from ..errors import CurveError
 from . import bezier as bz
 from .curves import DEGREE_LINE, Curves, elevate
-from .plane import cross
+from .plane import closest_on_segments, cross
 from .tolerances import Tolerances, tol
 
 __all__ = ["clean"]
@@ -186,7 +186,8 @@ def _clip(p: _Pieces, domain, snap: float) -> _Pieces:
             pieces.append(which[i])
             ts.append(r[i, j])
     p = _cut(p, np.concatenate(pieces), np.concatenate(ts))
-    # a part cut at the band's edge reaches ``snap`` give or take a rounding: the margin keeps it from counting as inside
+    # a part cut at the band's edge reaches ``snap`` give or take a rounding: the margin keeps it from counting as
+    # inside
     return p.take(_depth(bz.flatten(p.cp, 8), domain).max(axis=1) > 2.0 * snap)
 
 
@@ -263,22 +264,6 @@ def _segment_pairs(seg: _Segments, pad: float, diag: float) -> tuple[np.ndarray,
     return pair // len(seg.a), pair % len(seg.a)
 
 
-def _closest_on_segments(p1, q1, p2, q2):
-    """Closest points of segment pairs (Ericson): parameters u, v in [0, 1] and the distance, all (K,)."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e = (d1 * d1).sum(1), (d2 * d2).sum(1)
-    b, c, f = (d1 * d2).sum(1), (d1 * r).sum(1), (d2 * r).sum(1)
-    denom = a * e - b * b
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.where(denom > 0.0, np.clip((b * f - c * e) / denom, 0.0, 1.0), 0.0)
-        v = np.where(e > 0.0, (b * u + f) / e, 0.0)
-        u = np.where(v < 0.0, np.where(a > 0.0, np.clip(-c / a, 0.0, 1.0), 0.0), u)
-        u = np.where(v > 1.0, np.where(a > 0.0, np.clip((b - c) / a, 0.0, 1.0), 0.0), u)
-    v = np.clip(v, 0.0, 1.0)
-    gap = (p1 + u[:, None] * d1) - (p2 + v[:, None] * d2)
-    return u, v, np.hypot(gap[:, 0], gap[:, 1])
-
-
 def _coincide(cp_a, s, cp_b, t, snap: float) -> np.ndarray:
     """Whether piece A runs along piece B on either side of the matching points A(s) ≈ B(t): (K,) bool."""
     da, db = bz.derivative(cp_a, s), bz.derivative(cp_b, t)
@@ -301,7 +286,7 @@ def _crossings(p: _Pieces, seg: _Segments, snap: float, diag: float, exact: floa
     ``exact``: only points where the pieces meet within this distance and cross at a sine above ``_EXACT_SIN`` (true
     crossings, near-parallel ones included; no overlap check), and no self-intersections."""
     i, j = _segment_pairs(seg, 0.5 * snap, diag)
-    u, v, gap = _closest_on_segments(seg.a[i], seg.b[i], seg.a[j], seg.b[j])
+    u, v, gap = closest_on_segments(seg.a[i], seg.b[i], seg.a[j], seg.b[j])
     near = gap <= seg.err[i] + seg.err[j] + snap
     i, j, u, v = i[near], j[near], u[near], v[near]
     # Newton from the closest points and from the corners of the two segments' parameter ranges, so that

@@ -35,11 +35,11 @@ from . import bezier
 from .cleanup import clean
 from .curves import Curves, split_pieces
 from .mesh import Mesh, min_side_distance
-from .plane import cross
+from .plane import closest_on_segments, cross
 from .tolerances import tol
 
-__all__ = ["triangulate", "constrained_delaunay", "halving_points", "nominal_edge", "retriangulate", "DEFAULT_TRIANGLES",
-           "GRID_SNAP", "STEINER_STEPS_PER_EDGE"]
+__all__ = ["triangulate", "constrained_delaunay", "halving_points", "nominal_edge", "retriangulate",
+           "DEFAULT_TRIANGLES", "GRID_SNAP", "STEINER_STEPS_PER_EDGE"]
 
 DEFAULT_TRIANGLES = 2000
 """Triangle count the default density aims at over the whole domain (area bound = domain area / 1000)."""
@@ -273,7 +273,7 @@ def _join_forks(a, b, apex, found, eps):
         i, j, at = i[keep], j[keep], at[keep]
         near_i = np.hypot(*(apex[i] - at).T) <= np.hypot(*(apex[j] - at).T)
         near, far = np.where(near_i, i, j), np.where(near_i, j, i)
-        join = _segment_distance(apex[near], np.stack([at, apex[far]], axis=1)) <= eps
+        join = closest_on_segments(apex[near], apex[near], at, apex[far])[2] <= eps
         join &= ~np.all(apex[near] == apex[far], axis=1)
         ray = apex[far] - at
         join &= cross(ray, _far_end(a, b, near, at) - at) * cross(ray, _far_end(a, b, far, at) - at) < 0  # either side
@@ -520,7 +520,8 @@ def _separate(cp, degree, piece, lines, domain, eps):
         d = _signed(seg[:, 0], seg[:, 1], tri[i])
         apart = _separated(tri[i], seg, eps) | (d.max(axis=1) <= eps) | (d.min(axis=1) >= -eps)
         bad[i[~apart]] = True
-        bad[i[_segment_distance(apex[i], seg) <= eps]] = True  # an apex (a CDT vertex) on a line splits it
+        on_line = closest_on_segments(apex[i], apex[i], seg[:, 0], seg[:, 1])[2] <= eps
+        bad[i[on_line]] = True  # an apex (a CDT vertex) on a line splits it
 
         points = np.unique(np.concatenate([corners, lines.reshape(-1, 2), a, b]), axis=0)
         i, k = _box_pairs(lo[check], hi[check], points, points)
@@ -579,13 +580,6 @@ def _signed(p, q, pts) -> np.ndarray:
     """Signed distances of pts (N, K, 2) to the lines p -> q ((N, 2) each), left positive -> (N, K)."""
     d = q - p
     return cross(d[:, None], pts - p[:, None]) / np.hypot(*d.T)[:, None]
-
-
-def _segment_distance(p, seg) -> np.ndarray:
-    """Distances of points p (N, 2) to segments seg (N, 2, 2) -> (N,)."""
-    d = seg[:, 1] - seg[:, 0]
-    t = np.clip(((p - seg[:, 0]) * d).sum(axis=1) / np.maximum((d * d).sum(axis=1), np.finfo(float).tiny), 0.0, 1.0)
-    return np.hypot(*(seg[:, 0] + t[:, None] * d - p).T)
 
 
 def _signed_edges(tri, p) -> np.ndarray:
