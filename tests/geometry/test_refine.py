@@ -237,3 +237,57 @@ def test_curves_over_another_domain_are_refined_in_its_units(shapes):
     assert refined.curves.domain == big.domain
     back = replace(refined.curves, domain=true.domain, control_points=refined.curves.control_points / 2.0)
     assert compare(true, back)["mean_px"] < 0.02
+
+
+def test_pieces_a_refinement_would_make_cross_are_held_and_the_others_refined(shapes):
+    """A line ends 0.05 px outside the disc moved by (0.13, −0.09) px, 0.13 px inside the true one: refining the
+    disc makes them cross, so the line and the disc piece it would cross stay as given (with a warning naming
+    them) and the disc's other three pieces are refined, to within 0.02 px of the true circle."""
+    pixels = filtered_raster(shapes, 56, 56, "box")
+    disc = shapes.curves.curve == 1
+    true = replace(shapes.curves, control_points=shapes.curves.control_points[disc], degree=shapes.curves.degree[disc],
+                   curve=np.zeros(int(disc.sum()), dtype=np.int64), t_range=shapes.curves.t_range[disc],
+                   names=["disc"], sides=[None])
+    moved = replace(true, control_points=true.control_points + OFFSET)
+    centre, y = np.array([40.2, 27.3]) + OFFSET, 31.3
+    end = centre[0] - np.sqrt(9.1**2 - (y - centre[1]) ** 2) - 0.05
+    line = _pieces([("line", [(1, [(25.0, y), (end, y)])])], (0.0, 0.0, 56.0, 56.0))
+    both = replace(moved, control_points=np.concatenate([moved.control_points, line.control_points]),
+                   degree=np.r_[moved.degree, line.degree], curve=np.r_[moved.curve, line.curve + 1],
+                   t_range=np.concatenate([moved.t_range, line.t_range]), names=["disc", "line"], sides=[None] * 2)
+    assert crossings(both.control_points) == []
+    refined = refine_curves(pixels, both, parse("box"))
+    assert refined.warning is not None and "'disc' and 'line' would make curves cross" in refined.warning
+    out = refined.curves.control_points
+    assert crossings(out) == []
+    held = [k for k in range(5) if np.array_equal(out[k], both.control_points[k])]
+    assert held == [1, 4]  # the quarter of the disc the line points into, and the line
+    assert refined.to_dict()["left_as_given"] == 2 and "warning" not in refined.to_dict()  # a file's header: short
+
+    def distance(k, cp):
+        one = replace(true, control_points=cp[k:k + 1], degree=true.degree[k:k + 1], curve=true.curve[k:k + 1],
+                      t_range=true.t_range[k:k + 1])
+        return compare(replace(one, control_points=true.control_points[k:k + 1]), one)["mean_px"]
+
+    for k in (0, 2, 3):
+        assert distance(k, moved.control_points) > 0.05 and distance(k, out) < 0.02
+
+
+def test_a_side_that_is_no_plane_gives_no_pixels(monkeypatch):
+    """A vertical edge at x = 20.3 px (0.8 | 0.2) given at 20.43, and an uncurved texture step (0.2 → 0.35) 2.7 px
+    to its right, where side B is read: read as a plane, that side pulls the curve away from the edge; the
+    planarity test drops those pixels, so the curve stays as given."""
+    from dfc.bench.scenes import AnalyticScene
+    from dfc.geometry.sources import refine as module
+
+    edge = _pieces([("edge", [(1, [(20.3, 0.0), (20.3, 40.0)])])], (0.0, 0.0, 40.0, 40.0))
+    scene = AnalyticScene("edge", edge, ["Y"],
+                          lambda xy: np.where(xy[:, 0] < 20.3, 0.8, np.where(xy[:, 0] > 23.0, 0.35, 0.2))[:, None])
+    pixels = filtered_raster(scene, 40, 40, "box")
+    given = replace(edge, control_points=edge.control_points + [0.13, 0.0])
+    refined = refine_curves(pixels, given, parse("box"))
+    assert refined.pixels == 0 and "no clean mixed pixels" in refined.summary()
+    np.testing.assert_array_equal(refined.curves.control_points, given.control_points)
+    monkeypatch.setattr(module, "PLANAR", np.inf)
+    x = refine_curves(pixels, given, parse("box")).curves.control_points[0, :, 0]
+    assert np.all(x > 20.435)  # away from the edge at 20.3

@@ -17,17 +17,18 @@ derivative in the parameter vanishes there), and the side test is a logistic of 
 ``SOFT_DISCRETE``, for filters of a few sub-samples: ``point`` and ``box:N``, whose pixels change in steps). An
 isotropic Gaussian needs no side test: across the curve its share is the normal distribution's tail, exact, and
 only the points along the curve are a quadrature (``GAUSS_HERMITE``). Only clean pixels count: the curve within the
-filter's reach of the pixel follows that parabola within ``STRAIGHT`` px (no junction, corner or second curve), the side
-readings are clear of every other curve and inside the image, and the jump is at least ``MIN_JUMP`` of the
-image's range where its PSNR is measured (``dfc.metrics.measure_space``: tone-mapped for HDR light).
+filter's reach of the pixel follows that parabola within ``STRAIGHT`` px (no junction, corner or second curve), the
+side readings are clear of every other curve and inside the image, each side's readings (a third pair midway too)
+lie on one plane within ``PLANAR`` of the jump, and the jump is at least ``MIN_JUMP`` of the image's range where its
+PSNR is measured (``dfc.metrics.measure_space``: tone-mapped for HDR light).
 
 Constraints: endpoints that coincide (``JOIN`` px) are one variable (junctions, closed curves, chained pieces);
 an endpoint lying on another piece's inside (a T) is that piece's point at a fixed parameter; an endpoint on the
 image border slides along it; every control point stays inside the image and within ``MAX_MOVE`` px of where it
 was; lines stay lines and quadratics quadratics. Pieces that cross each other where they do not share a point are
 left as given, with every endpoint they share and the pieces their T ends lie on, and the others refined, with a
-warning; a refinement that would make two pieces cross that did not is shortened (halved up to ``BACKTRACK``
-times) and else dropped, with a warning.
+warning; when a refinement would make two pieces cross that did not, those two are held as given too and the rest
+solved again (up to ``HOLDS`` times; then every piece is left as given), with a warning.
 
 Coordinates follow ``spec/conventions.md``: pixel ``(r, c)`` covers ``[c, c + 1] × [r, r + 1]`` of the image's
 domain ``[0, W] × [0, H]``; curves over another domain are scaled onto it and back.
@@ -67,6 +68,10 @@ SIDE_NEAR, SIDE_FAR = 1.5, 3.0
 ALONG = 1.0
 """Each side is read this far (px) along the curve either way of the foot point too: a plane per side, whose
 gradient enters the prediction of a mixed pixel (its filter weighs each side's plane over that side's share)."""
+PLANAR = 0.1
+"""A pixel counts when each side's readings agree with one plane: the twist of its four readings and the bend of a
+third pair midway (twice its offset from the near and far readings' mean) are both within this share of the jump
+(a texture edge, a highlight or a limb's shading read as a side would move the curve instead)."""
 MIN_JUMP = 0.05
 """Smallest jump of a pixel that counts, as a share of the image's range in ``dfc.metrics.measure_space``."""
 MAX_MOVE = 1.0
@@ -75,8 +80,9 @@ JOIN = 1e-6
 """Endpoints closer than this (px) are one point; an endpoint this close to another piece's inside is a T."""
 PENALTY = 1e-3
 """Weight of the squared move (px²) of each control point against the pixels' squared share misfit."""
-BACKTRACK = 3
-"""Halvings of the moves tried when a refinement makes curves cross."""
+HOLDS = 3
+"""Times a refinement that makes pieces cross that did not is solved again with the pieces of those crossings held
+as given (then every piece is left as given, with a warning)."""
 CHUNK = 1 << 20
 """Pixel × quadrature point pairs per chunk of the loss (memory: about 100 bytes each)."""
 _SPACING = 0.1  # px between curve samples for foot points and clearance tests
@@ -91,7 +97,8 @@ class Refined:
     pixels : clean pixels the last round fitted
     misfit_before, misfit_after : RMS misfit over those pixels, as a share of the jump, with the input and the
         refined curves (the last round's model)
-    warning : one line when the curves were left as given (crossing curves), else None
+    warning : one line when pieces were left as given (crossing curves), else None
+    left_as_given : how many pieces were left as given because they cross or would cross
     """
 
     curves: Curves
@@ -100,6 +107,7 @@ class Refined:
     misfit_before: float
     misfit_after: float
     warning: str | None = None
+    left_as_given: int = 0
 
     def summary(self) -> str:
         """One line: pixels fitted, misfit before → after, the largest move (and whether some pieces were left as
@@ -111,10 +119,11 @@ class Refined:
                 + ("; crossing pieces left as given" if self.warning else ""))
 
     def to_dict(self) -> dict:
-        """The record a summary or a file's encoder info keeps (short: it goes into every file's header)."""
+        """The record a summary or a file's encoder info keeps (short: it goes into every file's header, so the
+        warning is counted, not quoted)."""
         out = {"pixels": self.pixels, "misfit_before": round(self.misfit_before, 4),
                "misfit_after": round(self.misfit_after, 4), "max_move_px": round(float(self.moved.max(initial=0.0)), 3)}
-        return {**out, "warning": self.warning} if self.warning else out
+        return {**out, "left_as_given": self.left_as_given} if self.left_as_given else out
 
 
 def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, rounds: int = ROUNDS) -> Refined:
@@ -124,8 +133,6 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
 
     Raises ``InputError`` when a control point lies outside the domain or the image holds non-finite values.
     """
-    import torch
-
     from ...pixel_filter import parse
 
     f = pixel_filter if pixel_filter is not None else parse("box")
@@ -143,17 +150,50 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     if not len(start):
         return Refined(curves, np.zeros(0), 0, 0.0, 0.0)
     crossed = crossings(start)
-    params = _Params(start, curves.degree, W, H, frozen={p for pair in crossed for p in pair})
-    if params.frozen.all():
-        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, _crossing_warning(curves, crossed, "them"))
     reach = _reach(f)
     points = GAUSS_HERMITE if f.name == "gaussian" else len(f.nodes(QUAD_POINTS)[1])
     discrete = points < QUAD_POINTS and f.name != "gaussian"
+    frozen = {p for pair in crossed for p in pair}
+    held: set[int] = set()  # pieces held as given because refining them made pieces cross
+    new: set[tuple[int, int]] = set()  # crossings the last solve made
+    for _ in range(HOLDS + 1):
+        params = _Params(start, curves.degree, W, H, frozen=frozen | held)
+        if params.frozen.all():
+            break
+        solved = _solve(pixels, start, params, f, reach, points, discrete, rounds)
+        if solved is None:
+            return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0)
+        cp, data, loss_of = solved
+        new = set(crossings(cp)) - set(crossed)
+        if not new:
+            break
+        held |= {p for pair in new for p in pair}
+    if params.frozen.all() or new:
+        warning = (_crossing_warning(curves, crossed, "them") if not held
+                   else "refining the curves would make them cross: left as given")
+        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, warning, len(start))
+    warnings = [_crossing_warning(curves, crossed, "those pieces")] if crossed else []
+    if held:
+        names = sorted({_name(curves, p) for p in held})
+        named = " and ".join(names) if len(names) <= 3 else f"{', '.join(names[:3])} and {len(names) - 3} more"
+        warnings.append(f"refining {named} would make curves cross: {len(held)} of their pieces left as given")
+    moved = np.linalg.norm(cp - start, axis=2).max(axis=1)
+    out = replace(curves, control_points=cp / scale + origin)
+    used = len(data["piece"])
+    before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (start, cp))
+    return Refined(out, moved, used, before, after, "; ".join(warnings) or None, int(params.frozen.sum()))
+
+
+def _solve(pixels, start, params, f, reach, points, discrete, rounds):
+    """(control points (P, 4, 2) px, the last round's pixel data, its loss) of ``rounds`` least-squares rounds
+    from ``start`` with the free variables of ``params``; None when no clean pixel lies near the curves."""
+    import torch
+
     cp, data = start, None
     for k in range(max(1, rounds)):
         data = _pixel_data(pixels, cp, reach) or data
         if data is None:
-            return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0)
+            return None
         soft = SOFT_DISCRETE[min(k, len(SOFT_DISCRETE) - 1)] if discrete else SOFT
         loss_of = _loss(data, f, soft)
         x = torch.from_numpy(params.pack(cp)).requires_grad_(True)
@@ -177,19 +217,7 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
         opt.step(closure)
         with torch.no_grad():
             cp = params.limit(params.build(x).numpy(), start)
-    warning = _crossing_warning(curves, crossed, "those pieces") if crossed else None
-    for _ in range(BACKTRACK + 1):
-        if set(crossings(cp)) <= set(crossed):
-            break
-        cp = start + 0.5 * (cp - start)
-    else:
-        warning = "refining the curves would make them cross: left as given"
-        cp = start
-    moved = np.linalg.norm(cp - start, axis=2).max(axis=1)
-    out = replace(curves, control_points=cp / scale + origin)
-    used = len(data["piece"])
-    before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (start, cp))
-    return Refined(out, moved, used, before, after, warning)
+    return cp, data, loss_of
 
 
 def _crossing_warning(curves: Curves, crossed: list[tuple[int, int]], what: str) -> str:
@@ -381,20 +409,21 @@ def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None
         if np.abs(b - 0.5 * kappa[k] * a * a).max() > STRAIGHT:
             ok[k] = False
     near_side, far_side = reach * np.sqrt(2.0) + SIDE_NEAR, reach * np.sqrt(2.0) + SIDE_FAR
-    across = np.array([near_side, far_side, -near_side, -far_side])[:, None] * np.ones(2)  # (4, 2)
-    along = np.array([-ALONG, ALONG])[None, :] * np.ones((4, 1))
+    mid_side = 0.5 * (near_side + far_side)
+    across = np.array([near_side, far_side, -near_side, -far_side, mid_side, -mid_side])[:, None] * np.ones(2)
+    along = np.array([-ALONG, ALONG])[None, :] * np.ones((6, 1))
     spots = (p[:, None, None, :] + across[None, :, :, None] * normal[:, None, None, :]
-             + along[None, :, :, None] * tan[:, None, None, :])  # (N, 4, 2, 2)
+             + along[None, :, :, None] * tan[:, None, None, :])  # (N, 6, 2, 2)
     flat = spots.reshape(-1, 2)
     # a reading is clear when no other curve reaches its bilinear footprint through the filter
-    clear = tree.query(flat)[0].reshape(-1, 4, 2) >= np.minimum(np.abs(across) - 0.5, near + 1.0)[None]
+    clear = tree.query(flat)[0].reshape(-1, 6, 2) >= np.minimum(np.abs(across) - 0.5, near + 1.0)[None]
     inside = ((flat[:, 0] >= 0.5) & (flat[:, 0] <= W - 0.5) & (flat[:, 1] >= 0.5) & (flat[:, 1] <= H - 0.5))
-    ok &= clear.all(axis=(1, 2)) & inside.reshape(-1, 8).all(axis=1)
+    ok &= clear.all(axis=(1, 2)) & inside.reshape(-1, 12).all(axis=1)
     if not ok.any():
         return None
     rc = [flat[:, 1] - 0.5, flat[:, 0] - 0.5]
     read = np.stack([map_coordinates(pixels[..., c], rc, order=1, mode="nearest") for c in range(C)], axis=-1)
-    read = read.reshape(-1, 4, 2, C)
+    read = read.reshape(-1, 6, 2, C)
     planes = []
     for near_k, far_k, sign in ((0, 1, 1.0), (2, 3, -1.0)):  # side A (on the normal's side), then side B
         m1, m2 = read[:, near_k].mean(axis=1), read[:, far_k].mean(axis=1)  # (N, C)
@@ -406,6 +435,10 @@ def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None
     (a, grad_a), (b, grad_b) = planes
     jump = a - b
     size2 = (jump * jump).sum(axis=1)
+    for near_k, far_k, mid_k in ((0, 1, 4), (2, 3, 5)):  # each side a plane: its six readings agree with one
+        twist = (read[:, near_k, 0] - read[:, near_k, 1]) - (read[:, far_k, 0] - read[:, far_k, 1])
+        bend = read[:, mid_k].mean(axis=1) - 0.5 * (read[:, near_k].mean(axis=1) + read[:, far_k].mean(axis=1))
+        ok &= np.maximum((twist * twist).sum(axis=1), 4.0 * (bend * bend).sum(axis=1)) <= PLANAR**2 * size2
     ok &= step_size(a, b, pixels) >= MIN_JUMP
     ij = np.floor(centres).astype(np.int64)
     value = pixels[ij[:, 1], ij[:, 0]]
