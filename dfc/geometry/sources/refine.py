@@ -424,21 +424,21 @@ def _pixel_data(pixels: np.ndarray, cp: np.ndarray, reach: float) -> dict | None
     rc = [flat[:, 1] - 0.5, flat[:, 0] - 0.5]
     read = np.stack([map_coordinates(pixels[..., c], rc, order=1, mode="nearest") for c in range(C)], axis=-1)
     read = read.reshape(-1, 6, 2, C)
-    planes = []
-    for near_k, far_k, sign in ((0, 1, 1.0), (2, 3, -1.0)):  # side A (on the normal's side), then side B
+    planes, off_plane = [], []
+    for near_k, far_k, mid_k, sign in ((0, 1, 4, 1.0), (2, 3, 5, -1.0)):  # side A (on the normal's side), then B
         m1, m2 = read[:, near_k].mean(axis=1), read[:, far_k].mean(axis=1)  # (N, C)
         gn = (m2 - m1) / (sign * (far_side - near_side))
         v0 = m1 - gn * sign * near_side
-        gt = 0.5 * ((read[:, near_k, 1] - read[:, near_k, 0]) + (read[:, far_k, 1] - read[:, far_k, 0])) / (2 * ALONG)
+        along_near, along_far = read[:, near_k, 1] - read[:, near_k, 0], read[:, far_k, 1] - read[:, far_k, 0]
+        gt = 0.5 * (along_near + along_far) / (2 * ALONG)
         grad = gn[..., None] * normal[:, None, :] + gt[..., None] * tan[:, None, :]  # (N, C, 2)
         planes.append((v0 + np.einsum("ncx,nx->nc", grad, centres - p), grad))
+        twist, bend = along_far - along_near, read[:, mid_k].mean(axis=1) - 0.5 * (m1 + m2)  # both 0 on a plane
+        off_plane.append(np.maximum((twist * twist).sum(axis=1), 4.0 * (bend * bend).sum(axis=1)))
     (a, grad_a), (b, grad_b) = planes
     jump = a - b
     size2 = (jump * jump).sum(axis=1)
-    for near_k, far_k, mid_k in ((0, 1, 4), (2, 3, 5)):  # each side a plane: its six readings agree with one
-        twist = (read[:, near_k, 0] - read[:, near_k, 1]) - (read[:, far_k, 0] - read[:, far_k, 1])
-        bend = read[:, mid_k].mean(axis=1) - 0.5 * (read[:, near_k].mean(axis=1) + read[:, far_k].mean(axis=1))
-        ok &= np.maximum((twist * twist).sum(axis=1), 4.0 * (bend * bend).sum(axis=1)) <= PLANAR**2 * size2
+    ok &= np.maximum(*off_plane) <= PLANAR**2 * size2
     ok &= step_size(a, b, pixels) >= MIN_JUMP
     ij = np.floor(centres).astype(np.int64)
     value = pixels[ij[:, 1], ij[:, 0]]
