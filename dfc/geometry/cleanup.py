@@ -80,12 +80,18 @@ def clean(curves: Curves, *, tol: Tolerances = tol) -> Curves:
     p = _clip(p, curves.domain, snap)
     if len(p):
         p, verts = _split_at_crossings(p, curves.domain, snap, diag)
-        # pinning moved end points by up to ``snap``: where two pieces touch tangentially, that turns one piece a little
-        # and it can cross the other again near the contact, closer than ``snap`` to it (unseen by the pass above)
+        # pinning moved end points by up to ``snap``, and straightening moves nearly straight pieces as far: where two
+        # pieces touch tangentially, that turns one a little and it can cross the other again near the contact, closer
+        # than ``snap`` to it (unseen by the pass above)
+        p = _demote_straight(p, snap)
         p, verts = _split_at_crossings(p, curves.domain, snap, diag, exact=tol.touch_rel * diag)
         p = _dedupe(_demote_straight(p, snap), snap)
         p, verts = _split_shapes(p, verts, snap, min_size)
-        p, verts = _unshare_chords(p, verts, snap)
+        p, verts, halved = _unshare_chords(p, verts, snap)
+        if halved:  # the halves of two curves that shared a chord, straightened, can cross each other the same way
+            p, verts = _split_at_crossings(p, curves.domain, snap, diag, exact=tol.touch_rel * diag)
+            p, verts, _ = _unshare_chords(_dedupe(p, snap), verts, snap)
+            p = p.take(~_on_border(p, verts, curves.domain))
         p = _pin(p.take(np.lexsort((p.trange[:, 0], p.curve))), verts)
     return replace(curves, control_points=p.cp, degree=p.deg, curve=p.curve, t_range=p.trange,
                    names=list(curves.names), sides=list(curves.sides))
@@ -189,6 +195,15 @@ def _clip(p: _Pieces, domain, snap: float) -> _Pieces:
     # a part cut at the band's edge reaches ``snap`` give or take a rounding: the margin keeps it from counting as
     # inside
     return p.take(_depth(bz.flatten(p.cp, 8), domain).max(axis=1) > 2.0 * snap)
+
+
+def _on_border(p: _Pieces, verts: np.ndarray, domain) -> np.ndarray:
+    """(P,) bool: line pieces with both end points on one side of the border (a crossing put onto it, see
+    ``_onto_border``): they lie on the border, like the parts ``_clip`` drops."""
+    a, b = verts[p.ev[:, 0]], verts[p.ev[:, 1]]
+    x0, y0, x1, y1 = domain
+    same = ((a[:, 0] == b[:, 0]) & np.isin(a[:, 0], [x0, x1])) | ((a[:, 1] == b[:, 1]) & np.isin(a[:, 1], [y0, y1]))
+    return (p.deg == DEGREE_LINE) & same
 
 
 def _depth(pts: np.ndarray, domain) -> np.ndarray:
@@ -478,7 +493,9 @@ def _dedupe(p: _Pieces, snap: float) -> _Pieces:
 
 
 def _unshare_chords(p: _Pieces, verts: np.ndarray, snap: float):
-    """Drop closed lines and duplicates; halve curved pieces that share a chord or are closed."""
+    """Drop closed lines and duplicates; halve curved pieces that share a chord or are closed. Returns the pieces, the
+    vertices and the number of pieces halved."""
+    halved = 0
     for _ in range(_MAX_ROUNDS):
         p = _dedupe(p.take(~((p.deg == DEGREE_LINE) & (p.ev[:, 0] == p.ev[:, 1]))), snap)
         key, _ = _oriented(p)
@@ -488,6 +505,7 @@ def _unshare_chords(p: _Pieces, verts: np.ndarray, snap: float):
         split = np.nonzero((p.deg != DEGREE_LINE) & (shared | (p.ev[:, 0] == p.ev[:, 1])))[0]
         if len(split) == 0:
             break
+        halved += len(split)
         p, verts = _new_vertices(p, verts, split, np.full(len(split), 0.5))
         p = _demote_straight(_pin(p, verts), snap)
-    return p, verts
+    return p, verts, halved
