@@ -64,8 +64,8 @@ _POINTS = 4096
 class Detection:
     """The outcome of ``detect``: ``filter`` chosen; ``misfit`` RMS misfit per candidate spec (share of the jump, over
     its best ``KEEP`` of the pixels), best first; ``pixels`` clean profile pixels measured (0: no evidence, ``filter``
-    is ``FALLBACK``); ``t`` the best candidate's evidence over ``FALLBACK`` when it is outside the box family
-    (``MIN_EVIDENCE``, ``DECISIVE``), else None."""
+    is ``FALLBACK``); ``t`` the best candidate's evidence over the filter it had to beat (``FALLBACK`` when it is
+    outside the box family, or ``detect``'s ``incumbent``; ``MIN_EVIDENCE``, ``DECISIVE``), else None."""
 
     filter: PixelFilter
     misfit: dict[str, float] = field(default_factory=dict)
@@ -79,7 +79,7 @@ class Detection:
             return f"no clean edge profile; {FALLBACK} assumed"
         best = ", ".join(f"{k} {100 * v:.2f} %" for k, v in list(self.misfit.items())[:top])
         first = next(iter(self.misfit))
-        kept = (f"; {FALLBACK} kept: {first} better by {self.t:.1f} standard errors, under {MIN_EVIDENCE:g}"
+        kept = (f"; {self.filter} kept: {first} better by {self.t:.1f} standard errors, under {MIN_EVIDENCE:g}"
                 if str(self.filter) != first and self.t is not None else "")
         return f"misfit on {self.pixels} edge pixels: {best}{kept}"
 
@@ -97,8 +97,10 @@ def resolve(spec: str, pixels: np.ndarray, curves) -> tuple[PixelFilter, Detecti
     return parse(spec), None
 
 
-def detect(pixels: np.ndarray, curves, candidates=CANDIDATES) -> Detection:
-    """The candidate filter that explains ``pixels`` (H, W, C) near ``curves`` (over the image's domain) best."""
+def detect(pixels: np.ndarray, curves, candidates=CANDIDATES, incumbent: str | None = None) -> Detection:
+    """The candidate filter that explains ``pixels`` (H, W, C) near ``curves`` (over the image's domain) best.
+    ``incumbent``: a spec (tried too) that any other must beat by ``MIN_EVIDENCE`` standard errors (or
+    ``DECISIVE``), as a winner outside the box family must beat ``FALLBACK`` without one."""
     pixels = np.asarray(pixels, dtype=np.float64)
     if pixels.ndim == 2:
         pixels = pixels[..., None]
@@ -107,6 +109,8 @@ def detect(pixels: np.ndarray, curves, candidates=CANDIDATES) -> Detection:
         return Detection(parse(FALLBACK))
     d, normal, value, side_a, side_b = profile
     jump = side_a - side_b
+    if incumbent is not None and incumbent not in candidates:
+        candidates = (*candidates, incumbent)
     misfit, errors = {}, {}
     for spec in candidates:
         share = step_share(parse(spec), d, normal)
@@ -114,9 +118,10 @@ def detect(pixels: np.ndarray, curves, candidates=CANDIDATES) -> Detection:
         misfit[spec] = float(np.sqrt(np.mean(np.sort(errors[spec])[:max(1, int(KEEP * len(d)))])))
     ranked = dict(sorted(misfit.items(), key=lambda kv: kv[1]))
     best, t = next(iter(ranked)), None
-    if parse(best).name != "box" and FALLBACK in errors:
-        t = _paired_t(errors[FALLBACK], errors[best])
-        best = best if t >= MIN_EVIDENCE or misfit[best] < DECISIVE * misfit[FALLBACK] else FALLBACK
+    keep = FALLBACK if incumbent is None else incumbent
+    if best != keep and keep in errors and (incumbent is not None or parse(best).name != "box"):
+        t = _paired_t(errors[keep], errors[best])
+        best = best if t >= MIN_EVIDENCE or misfit[best] < DECISIVE * misfit[keep] else keep
     return Detection(parse(best), ranked, len(d), t)
 
 

@@ -48,7 +48,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -240,7 +240,10 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
 
         curves, pruned, refined = ready_curves(pixels, curves, prune=settings.prune_curves,
                                                refine=settings.refine_curves, n_triangles=settings.max_triangles,
-                                               target_bytes=settings.target_bytes, pixel_filter=settings.pixel_filter)
+                                               target_bytes=settings.target_bytes, pixel_filter=settings.pixel_filter,
+                                               detected=True)
+        if refined is not None:  # the filter found with the curves, detected again along the refined ones
+            enc = replace(enc, pixel_filter=refined.pixel_filter)
         for what, done in (("pruned", pruned), ("refined", refined)):
             if done is not None:
                 why = getattr(done, "warning", None)

@@ -97,14 +97,19 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
         stats["curves_pruned"] = pruned.summary()
     before = None
     if o["refine"]:
+        from ..geometry.sources.auto import refine_detected
         from ..geometry.sources.refine import refine_curves
 
         progress("refine")
         before = curves
-        refined = refine_curves(image.pixels, curves, pixel_filter)
+        # a detected filter is detected again along the refined curves, as dfc encode --curves auto does
+        refined = (refine_detected if detection is not None else refine_curves)(image.pixels, curves, pixel_filter)
         curves = refined.curves
         summary["refined"] = refined.to_dict()
         stats["refinement"] = refined.summary()
+        if refined.pixel_filter != str(pixel_filter):
+            stats["pixel_filter"] += f"; {refined.pixel_filter} along the refined curves, refined again through it"
+            summary["refined"]["pixel_filter"] = refined.pixel_filter
         if refined.warning:
             stats["warning"] = refined.warning
 

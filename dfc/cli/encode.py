@@ -254,7 +254,11 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
                 settings = replace(settings, pixel_filter=str(used))  # refined and fitted with the filter found
             if prune or refine:
                 bar.set_description_str(" and ".join(["pruning"] * prune + ["refining"] * refine) + " the curves")
-                curves, pruned, refined = _ready_curves(signal, curves, settings, prune, refine, fit_curves_to_image)
+                curves, pruned, refined = _ready_curves(signal, curves, settings, prune, refine, fit_curves_to_image,
+                                                        detected=detection is not None)
+                if refined is not None and detection is not None and refined.pixel_filter != settings.pixel_filter:
+                    settings = replace(settings, pixel_filter=refined.pixel_filter)  # detected again, refined with it
+                    curves_info = {**curves_info, "pixel_filter": refined.pixel_filter}
         if refined is not None and refined.warning and not quiet:
             click.echo(f"dfc: warning: {refined.warning}", err=True)
         if curves_info is not None:
@@ -277,7 +281,9 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
     if worked:  # the time line counts finding, pruning and refining the curves too
         report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
     if detection is not None:  # the filter was detected along every curve found, before pruning
-        report = replace(report, pixel_evidence=detection.evidence())
+        again = refined is not None and refined.pixel_filter != str(detection.filter)
+        report = replace(report, pixel_evidence=detection.evidence()
+                         + (f"; {refined.pixel_filter} along the refined curves" if again else ""))
     if blob is None:  # --workers: rank 0 wrote the file
         pass
     elif output == "-":
@@ -335,20 +341,22 @@ def _auto_curves(image, pixel_filter: str = "auto"):
         raise ExtraError("--curves auto finds curves with scikit-image: pip install 'dfc[curves]'") from None
 
 
-def _ready_curves(image, curves, settings, prune: bool, refine: bool, fit_curves_to_image: bool):
+def _ready_curves(image, curves, settings, prune: bool, refine: bool, fit_curves_to_image: bool,
+                  detected: bool = False):
     """(curves, ``Pruned`` or None, ``Refined`` or None) of ``--prune-curves`` and ``--refine-curves``
     (``dfc.geometry.sources.auto.ready_curves``): ``curves`` on the image's domain (as the encoder takes them:
     ``dfc.codec.check_domain``) less those that do not earn their bytes for a mesh of ``settings.max_triangles``
     (default size when None) in a file of ``settings.target_bytes``, then refined against the pixels through the
-    filter of ``settings.pixel_filter`` (with ``--curves auto`` the one the extractor found; "auto": detected along
-    the curves, as the encoder does)."""
+    filter of ``settings.pixel_filter`` (with ``--curves auto`` the one the extractor found, ``detected``; "auto":
+    detected along the curves, as the encoder does); a detected filter is detected again along the refined curves
+    (``dfc.geometry.sources.auto.refine_detected``)."""
     from ..codec import check_domain
     from ..geometry.sources.auto import ready_curves
 
     curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
     curves, pruned, refined = ready_curves(image.pixels, curves, prune=prune, refine=refine,
                                            n_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
-                                           pixel_filter=settings.pixel_filter)
+                                           pixel_filter=settings.pixel_filter, detected=detected)
     return curves, pruned, refined
 
 

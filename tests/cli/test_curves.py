@@ -3,6 +3,7 @@ one error line and no output file."""
 
 import json
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -101,6 +102,28 @@ def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, caps
     assert code == 0 and "1 curves" in table and "from the image (--curves auto)" in table
     assert f"pixel filter {used}" in table and "tolerance" not in table
 
+
+
+def test_encode_fits_the_filter_detected_again_along_the_refined_curves(disc_exr, tmp_path, capsys, monkeypatch):
+    """When the refined curves show another filter (``refine_detected``; measured on analytic rasters in the
+    refinement tests), the encode fits and records that one and says why."""
+    from dfc.cli.stats import file_stats
+    from dfc.geometry.sources import auto
+    from dfc.geometry.sources.raster import image_curves_filtered
+    from dfc.io.image import read_image
+
+    first = str(image_curves_filtered(read_image(disc_exr).pixels)[1])
+    other = "box:3" if first != "box:3" else "box:5"
+    real = auto.refine_detected
+    monkeypatch.setattr(auto, "refine_detected", lambda *a: replace(real(*a), pixel_filter=other))
+    out = tmp_path / "disc.dfield"
+    code, _, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
+                        "--json", tmp_path / "s.json"], capsys)
+    assert code == 0, err
+    record = file_stats(out)["encoder"]
+    assert record["pixel_filter"] == record["curves"]["pixel_filter"] == other
+    summary = json.loads((tmp_path / "s.json").read_text())
+    assert summary["pixel_filter"] == other and summary["pixel_evidence"].endswith(f"; {other} along the refined curves")
 
 def test_encode_without_curves_still_asks(disc_exr, tmp_path, capsys):
     code, _, err = run(["encode", disc_exr, "-o", tmp_path / "x.dfield"], capsys)

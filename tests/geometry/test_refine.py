@@ -14,6 +14,7 @@ from dfc.bench.pixel_filters import filtered_raster
 from dfc.bench.scenes import AnalyticScene, _pieces
 from dfc.bench.speed.curves_auto import compare
 from dfc.errors import InputError
+from dfc.geometry.sources.auto import refine_detected
 from dfc.geometry.sources.refine import GAUSS_HERMITE, _gaussian_side, crossings, refine_curves
 from dfc.pixel_filter import parse
 
@@ -72,6 +73,31 @@ def test_a_known_offset_comes_back_through_each_filter(shapes, spec, mean, p95):
     chord = closed[lines, 3] - closed[lines, 0]
     np.testing.assert_allclose(closed[lines, 1], closed[lines, 0] + chord / 3, atol=1e-9)
 
+
+
+@pytest.mark.parametrize("made, first", [("box:6", "box:16"), ("box:16", "box:6")])
+def test_a_filter_detected_again_along_the_refined_curves_refines_them_again(shapes, made, first):
+    """Curves a few hundredths of a pixel off cannot tell a box of 6 x 6 sub-samples from one of 16 x 16: refined
+    through the wrong one, they show the right one, and refined again through it they come closer."""
+    pixels = filtered_raster(shapes, 56, 56, made)
+    true = shapes.curves
+    moved = replace(true, control_points=true.control_points + OFFSET)
+    once = compare(true, refine_curves(pixels, moved, parse(first)).curves)
+    refined = refine_detected(pixels, moved, parse(first))
+    assert refined.pixel_filter == made and refined.warning is None
+    again = compare(true, refined.curves)
+    assert again["mean_px"] < 0.75 * once["mean_px"] and again["p95_px"] <= 0.012 < once["p95_px"], (once, again)
+    assert refined.moved.max() == pytest.approx(np.linalg.norm(refined.curves.control_points - moved.control_points,
+                                                               axis=2).max())
+
+
+def test_a_filter_the_refined_curves_confirm_is_refined_with_once(shapes):
+    pixels = filtered_raster(shapes, 56, 56, "gaussian:0.5")
+    moved = replace(shapes.curves, control_points=shapes.curves.control_points + OFFSET)
+    refined = refine_detected(pixels, moved, parse("gaussian:0.5"))
+    assert refined.pixel_filter == "gaussian:0.5"
+    np.testing.assert_array_equal(refined.curves.control_points,
+                                  refine_curves(pixels, moved, parse("gaussian:0.5")).curves.control_points)
 
 def test_edges_beside_hdr_light_are_refined(shapes):
     """The disc made an emitter (40 against the quad's jump of 0.4): the quad's pixels still count (a jump is

@@ -12,7 +12,8 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 ``--pixel-filter SPEC`` (repeatable) makes the rasters with that pixel filter instead
 (``dfc.bench.pixel_filters.filtered_raster``), and the extractor detects the filter (``image_curves_filtered``,
 "auto"). With ``--refine`` (the default) the extracted curves are refined against the pixels
-(``dfc.geometry.sources.refine``) and measured again (stage ``refined``). ``--zoom-steps N`` adds the edge zoom PSNR
+(``dfc.geometry.sources.refine``; a detected filter detected again along the refined curves and the curves refined
+again through it when another wins, as ``dfc encode --curves auto`` does) and measured again (stage ``refined``). ``--zoom-steps N`` adds the edge zoom PSNR
 at 33× and 100× of three encodes at equal bytes (``zoom_row``): the extracted, the true and the refined curves.
 
 ``--render CASE`` (repeatable) also runs on a path-traced render of a Mitsuba scene (``RENDER_CASES``: the corpus's
@@ -197,10 +198,10 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
                     return image_curves(p, settings), None
                 return image_curves_filtered(p, settings, "auto")[:2]
 
-            stages, used = _stages(pixels, find, refine, f"{name} {label}")
+            stages = _stages(pixels, find, refine, f"{name} {label}")
             found = stages[0][1]
             refined = stages[-1][1]
-            for stage, curves, seconds in stages:
+            for stage, curves, seconds, used in stages:
                 row = {"scene": name, "filter": label, "detected": str(used) if used else None, "stage": stage,
                        **compare(exact.curves, curves), **counts(curves), "width": w, "height": h,
                        "seconds": round(seconds, 3)}
@@ -223,8 +224,8 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
     for name in renders:
         pixels, true = _render(name, size or 256)
         h, w = pixels.shape[:2]
-        stages, used = _stages(pixels, lambda p: find_curves(p)[:2], refine, name)
-        for stage, curves, seconds in stages:
+        stages = _stages(pixels, lambda p: find_curves(p)[:2], refine, name)
+        for stage, curves, seconds, used in stages:
             row = {"scene": name, "filter": "render", "detected": str(used), "stage": stage,
                    **compare(true, curves), **counts(curves), "width": w, "height": h, "seconds": round(seconds, 3)}
             results["localisation"].append(row)
@@ -252,21 +253,24 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
 
 
 def _stages(pixels: np.ndarray, find, refine: bool, label: str):
-    """([(stage, curves, seconds)], the filter the curves were found with): the curves ``find(pixels) -> (curves,
-    filter or None: the box)``, then (``refine``) refined through that filter; a refinement's warning printed after
-    ``label``."""
+    """([(stage, curves, seconds, filter)]: the curves ``find(pixels) -> (curves, filter or None: the box)`` and the
+    filter they were found with, then (``refine``) refined through it; a filter ``find`` detected (not None) is
+    detected again along the refined curves as ``dfc encode --curves auto`` does
+    (``dfc.geometry.sources.auto.refine_detected``), and the refined stage names the filter refined with last. A
+    refinement's warning is printed after ``label``."""
+    from ...geometry.sources.auto import refine_detected
     from ...geometry.sources.refine import refine_curves
 
     clock = time.perf_counter()
     found, used = find(pixels)
-    stages = [("found", found, time.perf_counter() - clock)]
+    stages = [("found", found, time.perf_counter() - clock, used)]
     if refine:
         clock = time.perf_counter()
-        refined = refine_curves(pixels, found, used)
-        stages.append(("refined", refined.curves, time.perf_counter() - clock))
+        refined = refine_curves(pixels, found, used) if used is None else refine_detected(pixels, found, used)
+        stages.append(("refined", refined.curves, time.perf_counter() - clock, used and refined.pixel_filter))
         if refined.warning:
             click.echo(f"{label}: {refined.warning}")
-    return stages, used
+    return stages
 
 
 def _echo(row: dict, fmt) -> None:

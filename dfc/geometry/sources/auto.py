@@ -5,7 +5,10 @@
    is the encode's: the refinement and the fit use it rather than detect again along the fewer curves pruning
    keeps (a 2 KB target may keep too few clean edges to tell the filters apart).
 2. ``ready_curves``: each curve weighed against the bytes it costs for the encode's mesh and byte target (``prune``),
-   then the kept ones refined against the pixels through that filter (``refine``).
+   then the kept ones refined against the pixels through that filter (``refine``). A detected filter is detected
+   again along the refined curves (``refine_detected``): the curves found in the pixels lie a few hundredths of a
+   pixel off, which hides the difference between a box of 6 × 6 and of 16 × 16 sub-samples; the refined ones show it,
+   and when another filter wins there the curves are refined again through it, and the fit uses it.
 
 Curves over another domain than the image's ``[0, W] × [0, H]`` are scaled onto it by ``prune`` and ``refine`` and
 come back over their own domain.
@@ -19,7 +22,7 @@ import numpy as np
 
 from ..curves import Curves, fit_curves_to_domain
 
-__all__ = ["find_curves", "ready_curves"]
+__all__ = ["find_curves", "ready_curves", "refine_detected"]
 
 
 def find_curves(pixels: np.ndarray, pixel_filter: str = "auto"):
@@ -39,11 +42,15 @@ def find_curves(pixels: np.ndarray, pixel_filter: str = "auto"):
 
 
 def ready_curves(pixels: np.ndarray, curves: Curves, *, prune: bool = True, refine: bool = True,
-                 n_triangles: int | None = None, target_bytes: int | None = None, pixel_filter="auto"):
+                 n_triangles: int | None = None, target_bytes: int | None = None, pixel_filter="auto",
+                 detected: bool = False):
     """(curves, ``Pruned`` or None, ``Refined`` or None): ``curves`` pruned (``prune``: for a mesh of about
     ``n_triangles`` triangles and a file of at most ``target_bytes``, ``prune.prune_curves``), then refined
     (``refine``: ``refine.refine_curves`` through ``pixel_filter``, a ``PixelFilter`` or a spec, "auto": detected
-    along the curves as the encoder detects it). The curves keep their ``source``."""
+    along the curves as the encoder detects it). A filter detected ("auto", or ``detected``: the given one was
+    detected along these curves before pruning) is detected again along the refined curves (``refine_detected``);
+    the ``Refined``'s ``pixel_filter`` is the one the fit should use. The curves keep their ``source``."""
+    from ...pixel_filter import parse
     from ...pixel_model import resolve
     from .prune import prune_curves
     from .refine import refine_curves
@@ -55,8 +62,41 @@ def ready_curves(pixels: np.ndarray, curves: Curves, *, prune: bool = True, refi
     if refine:
         used = pixel_filter
         if isinstance(pixel_filter, str):  # detected along the curves over the image's own domain
-            h, w = np.shape(pixels)[:2]
-            used = resolve(pixel_filter, pixels, fit_curves_to_domain(curves, (0.0, 0.0, float(w), float(h))))[0]
-        refined = refine_curves(pixels, curves, used)
+            automatic = pixel_filter.strip().lower() == "auto"
+            detected = detected or automatic
+            used = resolve(pixel_filter, pixels, _on_image(pixels, curves))[0] if automatic else parse(pixel_filter)
+        refined = refine_detected(pixels, curves, used) if detected else refine_curves(pixels, curves, used)
         curves = replace(refined.curves, source=curves.source)
     return curves, pruned, refined
+
+
+def refine_detected(pixels: np.ndarray, curves: Curves, pixel_filter):
+    """``refine.refine_curves`` of ``curves`` against ``pixels`` (H, W, C) through ``pixel_filter``, a
+    ``PixelFilter`` detected along the curves before they were refined; then the filter detected again along the
+    refined curves (``dfc.pixel_model.detect``): when another fits them better by ``dfc.pixel_model.MIN_EVIDENCE``
+    standard errors (few pixels along a pruned set cannot overturn the detection along every curve found), the curves
+    are refined once more, from there, through it. Returns that last ``Refined`` (its misfits over that refinement's
+    pixels and model, its ``moved`` measured from ``curves``)."""
+    from ...pixel_model import detect
+    from .refine import refine_curves
+
+    refined = refine_curves(pixels, curves, pixel_filter)
+    if not refined.pixels:
+        return refined
+    again = detect(pixels, _on_image(pixels, refined.curves), incumbent=str(pixel_filter))
+    if not again.pixels or str(again.filter) == str(pixel_filter):
+        return refined
+    second = refine_curves(pixels, refined.curves, again.filter)
+    if not second.pixels:
+        return refined
+    h, w = np.shape(pixels)[:2]
+    x0, y0, x1, y1 = curves.domain
+    scale = np.array([w / (x1 - x0), h / (y1 - y0)])
+    moved = np.linalg.norm((second.curves.control_points - curves.control_points) * scale, axis=2).max(axis=1)
+    return replace(second, moved=moved)
+
+
+def _on_image(pixels: np.ndarray, curves: Curves) -> Curves:
+    """``curves`` over the image's own domain ``[0, W] × [0, H]``."""
+    h, w = np.shape(pixels)[:2]
+    return fit_curves_to_domain(curves, (0.0, 0.0, float(w), float(h)))

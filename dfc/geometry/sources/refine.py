@@ -99,6 +99,7 @@ class Refined:
         refined curves (the last round's model)
     warning : one line when pieces were left as given (crossing curves), else None
     left_as_given : how many pieces were left as given because they cross or would cross
+    pixel_filter : spec of the ``dfc.pixel_filter`` filter the pixels were seen through
     """
 
     curves: Curves
@@ -108,6 +109,7 @@ class Refined:
     misfit_after: float
     warning: str | None = None
     left_as_given: int = 0
+    pixel_filter: str = "box"
 
     def summary(self) -> str:
         """One line: pixels fitted, misfit before → after, the largest move (and whether some pieces were left as
@@ -148,7 +150,7 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     start = (curves.control_points - origin) * scale
     _check_inside(start, curves, W, H)
     if not len(start):
-        return Refined(curves, np.zeros(0), 0, 0.0, 0.0)
+        return Refined(curves, np.zeros(0), 0, 0.0, 0.0, pixel_filter=str(f))
     crossed = crossings(start)
     reach = _reach(f)
     points = GAUSS_HERMITE if f.name == "gaussian" else len(f.nodes(QUAD_POINTS)[1])
@@ -162,7 +164,7 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
             break
         solved = _solve(pixels, start, params, f, reach, points, discrete, rounds)
         if solved is None:
-            return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0)
+            return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, pixel_filter=str(f))
         cp, data, loss_of = solved
         new = set(crossings(cp)) - set(crossed)
         if not new:
@@ -171,7 +173,7 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     if params.frozen.all() or new:
         warning = (_crossing_warning(curves, crossed, "them") if not held
                    else "refining the curves would make them cross: left as given")
-        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, warning, len(start))
+        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, warning, len(start), str(f))
     warnings = [_crossing_warning(curves, crossed, "those pieces")] if crossed else []
     if held:
         names = sorted({_name(curves, p) for p in held})
@@ -181,7 +183,7 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     out = replace(curves, control_points=cp / scale + origin)
     used = len(data["piece"])
     before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (start, cp))
-    return Refined(out, moved, used, before, after, "; ".join(warnings) or None, int(params.frozen.sum()))
+    return Refined(out, moved, used, before, after, "; ".join(warnings) or None, int(params.frozen.sum()), str(f))
 
 
 def _solve(pixels, start, params, f, reach, points, discrete, rounds):
