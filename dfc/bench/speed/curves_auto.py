@@ -13,8 +13,9 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 (``dfc.bench.pixel_filters.filtered_raster``), and the extractor detects the filter (``image_curves_filtered``,
 "auto"). With ``--refine`` (the default) the extracted curves are refined against the pixels
 (``dfc.geometry.sources.refine``; a detected filter detected again along the refined curves and the curves refined
-again through it when another wins, as ``dfc encode --curves auto`` does) and measured again (stage ``refined``). ``--zoom-steps N`` adds the edge zoom PSNR
-at 33× and 100× of three encodes at equal bytes (``zoom_row``): the extracted, the true and the refined curves.
+again through it when another wins, as ``dfc encode --curves auto`` does) and measured again (stage ``refined``).
+``--zoom-steps N`` adds the edge zoom PSNR at 33× and 100× of three encodes at equal bytes (``zoom_row``): the
+extracted, the true and the refined curves.
 
 ``--render CASE`` (repeatable) also runs on a path-traced render of a Mitsuba scene (``RENDER_CASES``: the corpus's
 renders, noise and all), whose true curves are the scene's own visible curves (``dfc curves SCENE.xml``: silhouettes

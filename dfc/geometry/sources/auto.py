@@ -2,8 +2,9 @@
 
 1. ``find_curves``: the raster extractor at its defaults (``raster.image_curves_filtered``) with the encode's pixel
    filter ("auto": the box first, then the filter ``dfc.pixel_model.detect`` finds along those curves). That filter
-   is the encode's: the refinement and the fit use it rather than detect again along the fewer curves pruning
-   keeps (a 2 KB target may keep too few clean edges to tell the filters apart).
+   is the encode's: the refinement and the fit use it rather than detect afresh along the fewer curves pruning
+   keeps (a 2 KB target may keep too few clean edges to tell the filters apart); only clear evidence along the
+   refined curves replaces it (2).
 2. ``ready_curves``: each curve weighed against the bytes it costs for the encode's mesh and byte target (``prune``),
    then the kept ones refined against the pixels through that filter (``refine``). A detected filter is detected
    again along the refined curves (``refine_detected``): the curves found in the pixels lie a few hundredths of a
