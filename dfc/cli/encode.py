@@ -239,7 +239,7 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         if settings.steps is None:  # resolved here for the progress bar
             settings = replace(settings, steps=default_steps(kind, len(signal) if kind == "samples" else 0,
                                                              settings.batch_size))
-        detection = None
+        detection = redetected = None  # redetected: the filter the refined curves showed instead of the detected one
         clock = time.perf_counter()
         if curves_path != "auto":
             curves = read_curves_checked(curves_path, quiet)
@@ -257,8 +257,9 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
                 curves, pruned, refined = _ready_curves(signal, curves, settings, prune, refine, fit_curves_to_image,
                                                         detected=detection is not None)
                 if refined is not None and detection is not None and refined.pixel_filter != settings.pixel_filter:
-                    settings = replace(settings, pixel_filter=refined.pixel_filter)  # detected again, refined with it
-                    curves_info = {**curves_info, "pixel_filter": refined.pixel_filter}
+                    redetected = refined.pixel_filter  # detected again along the refined curves, refined with it
+                    settings = replace(settings, pixel_filter=redetected)
+                    curves_info = {**curves_info, "pixel_filter": redetected}
         if refined is not None and refined.warning and not quiet:
             click.echo(f"dfc: warning: {refined.warning}", err=True)
         if curves_info is not None:
@@ -281,9 +282,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
     if worked:  # the time line counts finding, pruning and refining the curves too
         report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
     if detection is not None:  # the filter was detected along every curve found, before pruning
-        again = refined is not None and refined.pixel_filter != str(detection.filter)
         report = replace(report, pixel_evidence=detection.evidence()
-                         + (f"; {refined.pixel_filter} along the refined curves" if again else ""))
+                         + (f"; {redetected} along the refined curves" if redetected else ""))
     if blob is None:  # --workers: rank 0 wrote the file
         pass
     elif output == "-":
