@@ -43,19 +43,31 @@ def inside(xy: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return out
 
 
-def subtended(xy: np.ndarray, polyline: np.ndarray, chunk: int = 1 << 14) -> np.ndarray:
+def subtended(xy: np.ndarray, polyline: np.ndarray, run: int = 16) -> np.ndarray:
     """Signed angle subtended by a polyline at points, divided by 2π.
 
     xy : (N, 2) float64 query points; polyline : (M, 2) float64 vertices
     returns (N,) float64; integer (winding number) for closed polylines
+
+    The polyline is taken ``run`` segments at a time. A point outside a run's bounding box sees the whole run
+    within less than a half-turn (a line separates them), so the run subtends exactly the angle between its first
+    and its last vertex as seen from there; only points inside the box sum the run's segments one by one.
     """
     xy = np.asarray(xy, dtype=np.float64)
-    out = np.empty(len(xy))
-    for s in range(0, len(xy), chunk):
-        d = polyline[None, :, :] - xy[s : s + chunk, None, :]  # (n, M, 2)
-        a, b = d[:, :-1], d[:, 1:]
-        out[s : s + chunk] = np.arctan2(cross(a, b), (a * b).sum(-1)).sum(-1) / (2 * np.pi)
-    return out
+    polyline = np.asarray(polyline, dtype=np.float64)
+    out = np.zeros(len(xy))
+    for start in range(0, len(polyline) - 1, run):
+        part = polyline[start : start + run + 1]
+        lo, hi = part.min(axis=0), part.max(axis=0)
+        near = np.all((xy >= lo) & (xy <= hi), axis=1)
+        far = ~near
+        a, b = part[0] - xy[far], part[-1] - xy[far]
+        out[far] += np.arctan2(cross(a, b), (a * b).sum(-1))
+        if near.any():
+            d = part[None, :, :] - xy[near, None, :]  # (n, run + 1, 2)
+            a, b = d[:, :-1], d[:, 1:]
+            out[near] += np.arctan2(cross(a, b), (a * b).sum(-1)).sum(-1)
+    return out / (2 * np.pi)
 
 
 @dataclass(frozen=True)

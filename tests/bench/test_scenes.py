@@ -14,6 +14,7 @@ from dfc.bench.scenes import (
     sample_scene,
     shapes_scene,
     strokes_scene,
+    subtended,
 )
 from dfc.errors import InputError
 from dfc.geometry.bezier import evaluate
@@ -131,3 +132,24 @@ def test_stripes_are_exact_band_by_band_and_graphs_of_their_pieces():
     p = np.array([[150.0, scene.boundary_y(np.array([150.0]))[2, 0]]])
     above, below = scene.value(p - [0, 1e-7]), scene.value(p + [0, 1e-7])
     assert np.abs(above - below).max() > 1e-3  # a jump across every boundary
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 60), st.booleans())
+def test_subtended_runs_equal_the_segment_by_segment_sum(seed, n, closed):
+    """The angle a polyline subtends, taken a run of segments at a time (the run's end points alone from outside its
+    bounding box), equals the sum over every segment: for open and closed polylines, at points on, beside and far
+    from them, on their vertices' coordinates (the boxes' edges) included."""
+    rng = np.random.default_rng(seed)
+    poly = np.cumsum(rng.normal(0.0, 1.0, (n, 2)), axis=0)
+    if closed:
+        poly = np.concatenate([poly, poly[:1]])
+    inner = poly[rng.integers(0, len(poly), 40)] + rng.normal(0.0, 0.3, (40, 2))
+    edges = np.stack([poly[rng.integers(0, len(poly), 40), 0], poly[rng.integers(0, len(poly), 40), 1]], axis=1)
+    xy = np.concatenate([inner, edges, rng.uniform(poly.min() - 5, poly.max() + 5, (40, 2))])
+    xy = xy[np.min(np.linalg.norm(xy[:, None] - poly[None], axis=2), axis=1) > 1e-6]  # off the vertices
+    d = poly[None] - xy[:, None]
+    a, b = d[:, :-1], d[:, 1:]
+    whole = np.arctan2(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], (a * b).sum(-1)).sum(-1) / (2 * np.pi)
+    np.testing.assert_allclose(subtended(xy, poly, run=4), whole, atol=1e-12)
+    np.testing.assert_allclose(subtended(xy, poly), whole, atol=1e-12)
