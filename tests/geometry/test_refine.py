@@ -82,13 +82,34 @@ def test_a_filter_detected_again_along_the_refined_curves_refines_them_again(sha
     pixels = filtered_raster(shapes, 56, 56, made)
     true = shapes.curves
     moved = replace(true, control_points=true.control_points + OFFSET)
-    once = compare(true, refine_curves(pixels, moved, parse(first)).curves)
+    first_pass = refine_curves(pixels, moved, parse(first))
+    once = compare(true, first_pass.curves)
     refined = refine_detected(pixels, moved, parse(first))
     assert refined.pixel_filter == made and refined.warning is None
     again = compare(true, refined.curves)
     assert again["mean_px"] < 0.75 * once["mean_px"] and again["p95_px"] <= 0.012 < once["p95_px"], (once, again)
     assert refined.moved.max() == pytest.approx(np.linalg.norm(refined.curves.control_points - moved.control_points,
                                                                axis=2).max())
+    # the misfit before is that of the curves as given (0.11 px off: about 7.6 % of the jump through either box),
+    # not of the first refinement's (under 1 %)
+    assert refined.misfit_before == pytest.approx(first_pass.misfit_before, rel=0.1)
+    assert refined.misfit_before > 5 * refined.misfit_after
+
+
+def test_moves_and_misfit_are_measured_from_the_origin_given(shapes):
+    """``origin``: a refinement that continues from refined curves reports its move and its misfit before from the
+    curves it was asked to measure from; without it, from the curves it starts at."""
+    pixels = filtered_raster(shapes, 56, 56, "box")
+    moved = replace(shapes.curves, control_points=shapes.curves.control_points + OFFSET)
+    first = refine_curves(pixels, moved, parse("box"))
+    plain = refine_curves(pixels, first.curves, parse("box"))
+    measured = refine_curves(pixels, first.curves, parse("box"), origin=moved)
+    np.testing.assert_array_equal(measured.curves.control_points, plain.curves.control_points)
+    assert measured.misfit_after == plain.misfit_after
+    assert plain.moved.max() < 0.1 < measured.moved.max()  # the given offset is 0.16 px
+    assert measured.moved.max() == pytest.approx(np.linalg.norm(measured.curves.control_points - moved.control_points,
+                                                                axis=2).max())
+    assert measured.misfit_before > 5 * plain.misfit_before
 
 
 def test_a_filter_the_refined_curves_confirm_is_refined_with_once(shapes):

@@ -13,7 +13,10 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 (``dfc.bench.pixel_filters.filtered_raster``), and the extractor detects the filter (``image_curves_filtered``,
 "auto"). With ``--refine`` (the default) the extracted curves are refined against the pixels
 (``dfc.geometry.sources.refine``; a detected filter detected again along the refined curves and the curves refined
-again through it when another wins, as ``dfc encode --curves auto`` does) and measured again (stage ``refined``).
+again through it when another wins, as ``dfc encode --curves auto`` does) and measured again (stage ``refined``);
+stage ``exact`` refines the scene's exact curves through the same filter and measures how far that moves them, the
+distance to which the pixels and the refinement's model pin a curve down (a refinement from the extracted curves
+cannot be expected to come nearer).
 ``--zoom-steps N`` adds the edge zoom PSNR at 33× and 100× of three encodes at equal bytes (``zoom_row``): the
 extracted, the true and the refined curves.
 
@@ -202,6 +205,8 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
             stages = _stages(pixels, find, refine, f"{name} {label}")
             found = stages[0][1]
             refined = stages[-1][1]
+            if refine:
+                stages.append(_exact_stage(pixels, exact.curves, stages[-1][3]))
             for stage, curves, seconds, used in stages:
                 row = {"scene": name, "filter": label, "detected": str(used) if used else None, "stage": stage,
                        **compare(exact.curves, curves), **counts(curves), "width": w, "height": h,
@@ -220,7 +225,7 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
                                        for k in ("true", "auto", "refined")))
             if preview_dir:
                 Path(preview_dir).mkdir(parents=True, exist_ok=True)
-                draw_curves(stages[-1][1], Path(preview_dir) / f"{name}_{label.replace(':', '_')}.png",
+                draw_curves(refined, Path(preview_dir) / f"{name}_{label.replace(':', '_')}.png",
                             background=pixels, hdr=float(pixels.max()) > 1.0, before=found if refine else None)
     for name in renders:
         pixels, true = _render(name, size or 256)
@@ -272,6 +277,18 @@ def _stages(pixels: np.ndarray, find, refine: bool, label: str):
         if refined.warning:
             click.echo(f"{label}: {refined.warning}")
     return stages
+
+
+def _exact_stage(pixels: np.ndarray, exact, spec: str | None):
+    """(stage "exact", curves, seconds, filter): the scene's exact curves ``exact`` refined through the filter the
+    extracted curves were refined with last (``spec``; None: the box). Their distance from the exact curves is how
+    closely the pixels pin a curve down for this refinement: no start can be expected to end nearer."""
+    from ...geometry.sources.refine import refine_curves
+    from ...pixel_filter import parse
+
+    clock = time.perf_counter()
+    moved = refine_curves(pixels, exact, parse(spec) if spec else None).curves
+    return "exact", moved, time.perf_counter() - clock, spec
 
 
 def _echo(row: dict, fmt) -> None:

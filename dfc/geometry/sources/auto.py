@@ -77,7 +77,7 @@ def refine_detected(pixels: np.ndarray, curves: Curves, pixel_filter):
     refined curves (``dfc.pixel_model.detect``): when another fits them better by ``dfc.pixel_model.MIN_EVIDENCE``
     standard errors (few pixels along a pruned set cannot overturn the detection along every curve found), the curves
     are refined once more, from there, through it. Returns that last ``Refined`` (its misfits over that refinement's
-    pixels and model, its ``moved`` measured from ``curves``)."""
+    pixels and model; ``misfit_before`` and ``moved`` of ``curves``, as given)."""
     from ...pixel_model import detect
     from .refine import refine_curves
 
@@ -87,14 +87,8 @@ def refine_detected(pixels: np.ndarray, curves: Curves, pixel_filter):
     again = detect(pixels, _on_image(pixels, refined.curves), incumbent=str(pixel_filter))
     if not again.pixels or str(again.filter) == str(pixel_filter):
         return refined
-    second = refine_curves(pixels, refined.curves, again.filter)
-    if not second.pixels:
-        return refined
-    h, w = np.shape(pixels)[:2]
-    x0, y0, x1, y1 = curves.domain
-    scale = np.array([w / (x1 - x0), h / (y1 - y0)])
-    moved = np.linalg.norm((second.curves.control_points - curves.control_points) * scale, axis=2).max(axis=1)
-    return replace(second, moved=moved)
+    second = refine_curves(pixels, refined.curves, again.filter, origin=curves)
+    return second if second.pixels else refined
 
 
 def _on_image(pixels: np.ndarray, curves: Curves) -> Curves:

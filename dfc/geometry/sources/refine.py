@@ -93,10 +93,10 @@ class Refined:
     """The outcome of ``refine_curves``.
 
     curves : the refined ``Curves`` (same pieces, names and domain as the input)
-    moved : (P,) float64 largest move of each piece's control points, px
+    moved : (P,) float64 largest move of each piece's control points from the input (``origin`` when given), px
     pixels : clean pixels the last round fitted
-    misfit_before, misfit_after : RMS misfit over those pixels, as a share of the jump, with the input and the
-        refined curves (the last round's model)
+    misfit_before, misfit_after : RMS misfit over those pixels, as a share of the jump, with the input (``origin``
+        when given) and the refined curves (the last round's model)
     warning : one line when pieces were left as given (crossing curves), else None
     left_as_given : how many pieces were left as given because they cross or would cross
     pixel_filter : spec of the ``dfc.pixel_filter`` filter the pixels were seen through
@@ -128,10 +128,13 @@ class Refined:
         return {**out, "left_as_given": self.left_as_given} if self.left_as_given else out
 
 
-def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, rounds: int = ROUNDS) -> Refined:
+def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, rounds: int = ROUNDS,
+                  origin: Curves | None = None) -> Refined:
     """Move the control points of ``curves`` so that the mixed pixels of ``pixels`` (H, W, C) or (H, W) linear
     values are explained by sharp steps across them seen through ``pixel_filter`` (a ``dfc.pixel_filter.PixelFilter``,
-    None: the box). ``curves`` cover the image: their domain is mapped onto ``[0, W] × [0, H]``.
+    None: the box). ``curves`` cover the image: their domain is mapped onto ``[0, W] × [0, H]``. ``origin``: the
+    curves (the same pieces over the same domain) that ``Refined.moved`` and ``misfit_before`` are measured from,
+    when ``curves`` are themselves the outcome of an earlier refinement (default: ``curves``).
 
     Raises ``InputError`` when a control point lies outside the domain or the image holds non-finite values.
     """
@@ -146,9 +149,14 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
         raise InputError("image holds NaN or infinite values: curves cannot be refined against it")
     x0, y0, x1, y1 = curves.domain
     scale = np.array([W / (x1 - x0), H / (y1 - y0)])
-    origin = np.array([x0, y0])
-    start = (curves.control_points - origin) * scale
+    offset = np.array([x0, y0])
+    start = (curves.control_points - offset) * scale
     _check_inside(start, curves, W, H)
+    first = start if origin is None else (origin.control_points - offset) * scale  # (P, 4, 2) px
+
+    def moved_from_first(cp):
+        return np.linalg.norm(cp - first, axis=2).max(axis=1, initial=0.0)
+
     if not len(start):
         return Refined(curves, np.zeros(0), 0, 0.0, 0.0, pixel_filter=str(f))
     crossed = crossings(start)
@@ -164,7 +172,7 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
             break
         solved = _solve(pixels, start, params, f, reach, points, discrete, rounds)
         if solved is None:
-            return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, pixel_filter=str(f))
+            return Refined(curves, moved_from_first(start), 0, 0.0, 0.0, pixel_filter=str(f))
         cp, data, loss_of = solved
         new = set(crossings(cp)) - set(crossed)
         if not new:
@@ -173,17 +181,16 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     if params.frozen.all() or new:
         warning = (_crossing_warning(curves, crossed, "them") if not held
                    else "refining the curves would make them cross: left as given")
-        return Refined(curves, np.zeros(len(start)), 0, 0.0, 0.0, warning, len(start), str(f))
+        return Refined(curves, moved_from_first(start), 0, 0.0, 0.0, warning, len(start), str(f))
     warnings = [_crossing_warning(curves, crossed, "those pieces")] if crossed else []
     if held:
         names = sorted({_name(curves, p) for p in held})
         named = " and ".join(names) if len(names) <= 3 else f"{', '.join(names[:3])} and {len(names) - 3} more"
         warnings.append(f"refining {named} would make curves cross: {len(held)} of their pieces left as given")
-    moved = np.linalg.norm(cp - start, axis=2).max(axis=1)
-    out = replace(curves, control_points=cp / scale + origin)
+    out = replace(curves, control_points=cp / scale + offset)
     used = len(data["piece"])
-    before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (start, cp))
-    return Refined(out, moved, used, before, after, "; ".join(warnings) or None, int(params.frozen.sum()), str(f))
+    before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (first, cp))
+    return Refined(out, moved_from_first(cp), used, before, after, "; ".join(warnings) or None, int(params.frozen.sum()), str(f))
 
 
 def _solve(pixels, start, params, f, reach, points, discrete, rounds):
