@@ -203,7 +203,8 @@ def test_curves_auto_benchmark_measures_a_render_against_its_scene_curves(tmp_pa
 
 
 def test_curves_auto_zoom_row_encodes_three_curve_sets_at_equal_bytes():
-    """``zoom_row``: the extracted curves' file sets the byte target of the true and the refined curves' files."""
+    """``zoom_row``: the extracted curves' file sets the byte target of the true and the refined curves' files (and
+    of the exact curves' refined, when given)."""
     from dataclasses import replace
 
     from dfc.bench.pixel_filters import filtered_raster
@@ -217,3 +218,6 @@ def test_curves_auto_zoom_row_encodes_three_curve_sets_at_equal_bytes():
     row = zoom_row(scene, pixels, moved, scene.curves, steps=2)
     assert row["true_bytes"] <= row["auto_bytes"] and row["refined_bytes"] <= row["auto_bytes"]
     assert all(np.isfinite(row[f"{k}_{z}x"]) for k in ("true", "auto", "refined") for z in (33, 100))
+    assert not any(k.startswith("exact") for k in row)
+    with_exact = zoom_row(scene, pixels, moved, scene.curves, steps=2, exact=scene.curves)
+    assert with_exact["exact_bytes"] <= with_exact["auto_bytes"] and np.isfinite(with_exact["exact_100x"])

@@ -17,8 +17,8 @@ again through it when another wins, as ``dfc encode --curves auto`` does) and me
 stage ``exact`` refines the scene's exact curves through the same filter and measures how far that moves them, the
 distance to which the pixels and the refinement's model pin a curve down (a refinement from the extracted curves
 cannot be expected to come nearer).
-``--zoom-steps N`` adds the edge zoom PSNR at 33× and 100× of three encodes at equal bytes (``zoom_row``): the
-extracted, the true and the refined curves.
+``--zoom-steps N`` adds the edge zoom PSNR at 33× and 100× of four encodes at equal bytes (``zoom_row``): the
+extracted, the true and the refined curves, and the true curves refined.
 
 ``--render CASE`` (repeatable) also runs on a path-traced render of a Mitsuba scene (``RENDER_CASES``: the corpus's
 renders, noise and all), whose true curves are the scene's own visible curves (``dfc curves SCENE.xml``: silhouettes
@@ -114,11 +114,12 @@ def _in_pixels(scene, w: int, h: int):
                          lambda xy: scene.value(np.asarray(xy) / scale + [x0, y0]))
 
 
-def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int) -> dict:
+def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int, exact=None) -> dict:
     """Edge zoom PSNR (``dfc.bench.speed.rate.measure``: 33× and 100× windows on the middle of every true curve,
     against the exact scene) of three encodes of ``pixels`` at equal bytes, ``steps`` steps each (no mesh
     refinement rounds): the extracted curves ``found`` at the default size, then the true curves and the refined
-    ones ``refined`` with that file's size as their byte target. ``scene`` is in the raster's pixel units."""
+    ones ``refined`` with that file's size as their byte target; a fourth of the curves ``exact`` when given (the
+    true curves refined: stage ``exact``). ``scene`` is in the raster's pixel units."""
     from ...codec import EncodeSettings, encode_image
     from ...errors import TargetBytesError
     from .rate import measure
@@ -126,7 +127,8 @@ def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int) -> dict:
     row = {}
     blob, _ = encode_image(pixels, found, EncodeSettings(steps=steps, refine=0))
     target = len(blob)
-    for key, curves, b in (("auto", found, blob), ("true", scene.curves, None), ("refined", refined, None)):
+    sets = [("auto", found, blob), ("true", scene.curves, None), ("refined", refined, None)]
+    for key, curves, b in sets + ([("exact", exact, None)] if exact is not None else []):
         if b is None:
             try:
                 b, _ = encode_image(pixels, curves, EncodeSettings(steps=steps, target_bytes=target, refine=0))
@@ -152,8 +154,9 @@ def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int) -> dict:
               help="Also refine the extracted curves against the pixels (dfc.geometry.sources.refine) and measure "
                    "them again.")
 @click.option("--zoom-steps", type=click.IntRange(min=0), default=0, show_default=True,
-              help="With N > 0: encode each raster with the extracted, the true and the refined curves at equal bytes "
-                   "(N steps each) and print the edge PSNR at 33x and 100x (slow: three encodes per raster).")
+              help="With N > 0: encode each raster with the extracted, the true, the refined curves and the true "
+                   "ones refined (stage exact) at equal bytes (N steps each) and print the edge PSNR at 33x and 100x "
+                   "(slow: four encodes per raster).")
 @click.option("--render", "renders", multiple=True, metavar="CASE", type=click.Choice(RENDER_CASES),
               help="Also measure on this path-traced render of a Mitsuba scene (a dfc bench --corpus case, rendered at "
                    "--size, default 256), against the scene's own visible curves: the curves dfc encode --curves auto "
@@ -207,6 +210,7 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
             refined = stages[-1][1]
             if refine:
                 stages.append(_exact_stage(pixels, exact.curves, stages[-1][3]))
+                exact_refined = stages[-1][1]
             for stage, curves, seconds, used in stages:
                 row = {"scene": name, "filter": label, "detected": str(used) if used else None, "stage": stage,
                        **compare(exact.curves, curves), **counts(curves), "width": w, "height": h,
@@ -217,12 +221,12 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
                 _echo(row, fmt)
             if zoom_steps and refine:
                 row = {"scene": name, "filter": label, "steps": zoom_steps,
-                       **zoom_row(exact, pixels, found, refined, zoom_steps)}
+                       **zoom_row(exact, pixels, found, refined, zoom_steps, exact_refined)}
                 results["zoom"].append(row)
                 click.echo(f"{name:>8} {label:>13} equal bytes ({row.get('auto_bytes')} B), edge PSNR 33x / 100x: "
                            + "; ".join(f"{k} " + (f"{row[k + '_33x']:.2f} / {row[k + '_100x']:.2f} dB"
                                                   if k + "_33x" in row else "refused")
-                                       for k in ("true", "auto", "refined")))
+                                       for k in ("true", "auto", "refined", "exact")))
             if preview_dir:
                 Path(preview_dir).mkdir(parents=True, exist_ok=True)
                 draw_curves(refined, Path(preview_dir) / f"{name}_{label.replace(':', '_')}.png",
