@@ -110,6 +110,8 @@ def test_moves_and_misfit_are_measured_from_the_origin_given(shapes):
     assert measured.moved.max() == pytest.approx(np.linalg.norm(measured.curves.control_points - moved.control_points,
                                                                 axis=2).max())
     assert measured.misfit_before > 5 * plain.misfit_before
+    with pytest.raises(ValueError, match="origin"):
+        refine_curves(pixels, first.curves, parse("box"), origin=replace(moved, domain=(0.0, 0.0, 112.0, 112.0)))
 
 
 def test_a_filter_the_refined_curves_confirm_is_refined_with_once(shapes):

@@ -136,7 +136,8 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     curves (the same pieces over the same domain) that ``Refined.moved`` and ``misfit_before`` are measured from,
     when ``curves`` are themselves the outcome of an earlier refinement (default: ``curves``).
 
-    Raises ``InputError`` when a control point lies outside the domain or the image holds non-finite values.
+    Raises ``InputError`` when a control point lies outside the domain or the image holds non-finite values,
+    ``ValueError`` when ``origin`` has other pieces or another domain.
     """
     from ...pixel_filter import parse
 
@@ -152,6 +153,8 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     offset = np.array([x0, y0])
     start = (curves.control_points - offset) * scale
     _check_inside(start, curves, W, H)
+    if origin is not None and (origin.control_points.shape != start.shape or origin.domain != curves.domain):
+        raise ValueError("origin: expected the same pieces over the same domain as the curves refined")
     first = start if origin is None else (origin.control_points - offset) * scale  # (P, 4, 2) px
 
     def moved_from_first(cp):
