@@ -14,9 +14,8 @@ extracted with ``image_curves`` at its default settings. Both curve sets are sam
 "auto"). With ``--refine`` (the default) the extracted curves are refined against the pixels
 (``dfc.geometry.sources.refine``; a detected filter detected again along the refined curves and the curves refined
 again through it when another wins, as ``dfc encode --curves auto`` does) and measured again (stage ``refined``);
-stage ``exact`` refines the scene's exact curves through the same filter and measures how far that moves them, the
-distance to which the pixels and the refinement's model pin a curve down (a refinement from the extracted curves
-cannot be expected to come nearer).
+stage ``exact`` refines the scene's exact curves through the same filter and measures how far that moves them: the
+refinement's own bias at the truth (a refinement from the extracted curves cannot be expected to come nearer).
 ``--zoom-steps N`` adds the edge zoom PSNR at 33× and 100× of four encodes at equal bytes (``zoom_row``): the
 extracted, the true and the refined curves, and the true curves refined.
 
@@ -285,8 +284,8 @@ def _stages(pixels: np.ndarray, find, refine: bool, label: str):
 
 def _exact_stage(pixels: np.ndarray, exact, spec: str | None):
     """(stage "exact", curves, seconds, filter): the scene's exact curves ``exact`` refined through the filter the
-    extracted curves were refined with last (``spec``; None: the box). Their distance from the exact curves is how
-    closely the pixels pin a curve down for this refinement: no start can be expected to end nearer."""
+    extracted curves were refined with last (``spec``; None: the box). Their distance from the exact curves is the
+    refinement's bias at the truth: no start can be expected to end nearer."""
     from ...geometry.sources.refine import refine_curves
     from ...pixel_filter import parse
 
