@@ -97,14 +97,13 @@ def _from_image(path: Path, o: dict, stats: dict, progress):
         stats["curves_pruned"] = pruned.summary()
     before = None
     if o["refine"]:
-        from ..geometry.sources.auto import refine_detected
-        from ..geometry.sources.refine import refine_curves
+        from ..geometry.sources.auto import ready_curves
 
         progress("refine")
         before = curves
         # a detected filter is detected again along the refined curves, as dfc encode --curves auto does
-        refined = (refine_detected if detection is not None else refine_curves)(image.pixels, curves, pixel_filter)
-        curves = refined.curves
+        curves, _, refined = ready_curves(image.pixels, curves, prune=False, pixel_filter=pixel_filter,
+                                          detected=detection is not None)
         summary["refined"] = refined.to_dict()
         stats["refinement"] = refined.summary()
         if refined.pixel_filter != str(pixel_filter):

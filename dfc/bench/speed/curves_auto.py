@@ -265,18 +265,17 @@ def _stages(pixels: np.ndarray, find, refine: bool, label: str):
     """([(stage, curves, seconds, filter)]: the curves ``find(pixels) -> (curves, filter or None: the box)`` and the
     filter they were found with, then (``refine``) refined through it; a filter ``find`` detected (not None) is
     detected again along the refined curves as ``dfc encode --curves auto`` does
-    (``dfc.geometry.sources.auto.refine_detected``), and the refined stage names the filter refined with last. A
+    (``dfc.geometry.sources.auto.ready_curves``), and the refined stage names the filter refined with last. A
     refinement's warning is printed after ``label``."""
-    from ...geometry.sources.auto import refine_detected
-    from ...geometry.sources.refine import refine_curves
+    from ...geometry.sources.auto import ready_curves
 
     clock = time.perf_counter()
     found, used = find(pixels)
     stages = [("found", found, time.perf_counter() - clock, used)]
     if refine:
         clock = time.perf_counter()
-        refined = refine_curves(pixels, found, used) if used is None else refine_detected(pixels, found, used)
-        stages.append(("refined", refined.curves, time.perf_counter() - clock, used and refined.pixel_filter))
+        curves, _, refined = ready_curves(pixels, found, prune=False, pixel_filter=used, detected=used is not None)
+        stages.append(("refined", curves, time.perf_counter() - clock, used and refined.pixel_filter))
         if refined.warning:
             click.echo(f"{label}: {refined.warning}")
     return stages

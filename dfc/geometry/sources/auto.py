@@ -47,8 +47,8 @@ def ready_curves(pixels: np.ndarray, curves: Curves, *, prune: bool = True, refi
                  detected: bool = False):
     """(curves, ``Pruned`` or None, ``Refined`` or None): ``curves`` pruned (``prune``: for a mesh of about
     ``n_triangles`` triangles and a file of at most ``target_bytes``, ``prune.prune_curves``), then refined
-    (``refine``: ``refine.refine_curves`` through ``pixel_filter``, a ``PixelFilter`` or a spec, "auto": detected
-    along the curves as the encoder detects it). A filter detected ("auto", or ``detected``: the given one was
+    (``refine``: ``refine.refine_curves`` through ``pixel_filter``, a ``PixelFilter`` or a spec, None: the box, "auto":
+    detected along the curves as the encoder detects it). A filter detected ("auto", or ``detected``: the given one was
     detected along these curves before pruning) is detected again along the refined curves (``refine_detected``);
     the ``Refined``'s ``pixel_filter`` is the one the fit should use. The curves keep their ``source``."""
     from ...pixel_filter import parse
