@@ -135,7 +135,6 @@ def test_detect_keeps_box_when_noise_alone_favours_a_wider_filter():
     assert str(found.filter) == "gaussian:0.5" and found.t >= MIN_EVIDENCE
 
 
-
 def test_an_incumbent_filter_is_kept_unless_another_fits_better_by_the_evidence_asked():
     """``incumbent``: the noisy box raster above keeps whichever filter it is given among those within noise of each
     other; a clean 4 x 4 box raster overturns a 16 x 16 incumbent."""
@@ -150,6 +149,7 @@ def test_an_incumbent_filter_is_kept_unless_another_fits_better_by_the_evidence_
         assert next(iter(found.misfit)) == incumbent or (found.t < MIN_EVIDENCE and f"{incumbent} kept" in found.evidence())
     found = detect(filtered_raster(scene64, 64, 64, "box:4"), scene64.curves, incumbent="box:16")
     assert str(found.filter) == "box:4" and found.t >= MIN_EVIDENCE
+
 
 @pytest.mark.parametrize("generation", ["box:2", "gaussian:0.5"])
 def test_detect_reads_round_edges(generation):

@@ -103,7 +103,6 @@ def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, caps
     assert f"pixel filter {used}" in table and "tolerance" not in table
 
 
-
 def test_encode_fits_the_filter_detected_again_along_the_refined_curves(disc_exr, tmp_path, capsys, monkeypatch):
     """When the refined curves show another filter (``refine_detected``; measured on analytic rasters in the
     refinement tests), the encode fits and records that one and says why."""
@@ -124,6 +123,7 @@ def test_encode_fits_the_filter_detected_again_along_the_refined_curves(disc_exr
     assert record["pixel_filter"] == record["curves"]["pixel_filter"] == other
     summary = json.loads((tmp_path / "s.json").read_text())
     assert summary["pixel_filter"] == other and summary["pixel_evidence"].endswith(f"; {other} along the refined curves")
+
 
 def test_encode_without_curves_still_asks(disc_exr, tmp_path, capsys):
     code, _, err = run(["encode", disc_exr, "-o", tmp_path / "x.dfield"], capsys)
