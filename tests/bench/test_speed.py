@@ -158,6 +158,25 @@ def test_gpu_table_ratio_and_targets():
     assert lines[3].rstrip().endswith("s")
 
 
+def test_curves_auto_distances_run_to_the_curves_not_to_their_samples():
+    """``compare``: the same geometry cut into other pieces (each piece split in two, so no sample of one set lies
+    on a sample of the other) is 0 px away, and a copy moved 0.003 px across measures 0.003 px."""
+    from dataclasses import replace
+
+    from dfc.bench.scenes import get_scene
+    from dfc.bench.speed.curves_auto import compare
+    from dfc.geometry import bezier
+
+    curves = get_scene("shapes").curves
+    halves = np.concatenate(bezier.split(curves.control_points, np.full(len(curves), 0.37)))
+    split = replace(curves, control_points=halves, degree=np.tile(curves.degree, 2), curve=np.tile(curves.curve, 2),
+                    t_range=np.tile(curves.t_range, (2, 1)))
+    same = compare(curves, split)
+    assert same["mean_px"] < 1e-5 and same["p95_px"] < 1e-5 and same["recall"] == 1.0 and same["false"] == 0.0
+    shifted = compare(curves, replace(curves, control_points=curves.control_points + [0.003, 0.0]))
+    assert 0.0005 < shifted["mean_px"] < 0.003 + 1e-6
+
+
 def test_curves_auto_benchmark_measures_before_and_after_refinement(tmp_path, capsys):
     """``dfc benchmark curves-auto --pixel-filter F``: a row per stage (found, refined, and the exact curves refined:
     exact) with its localisation."""
