@@ -173,8 +173,10 @@ def test_curves_auto_distances_run_to_the_curves_not_to_their_samples():
                     t_range=np.tile(curves.t_range, (2, 1)))
     same = compare(curves, split)
     assert same["mean_px"] < 1e-5 and same["p95_px"] < 1e-5 and same["recall"] == 1.0 and same["false"] == 0.0
+    assert len(same["probe_px"]) == curves.n_curves and max(same["probe_px"]) < 1e-5
     shifted = compare(curves, replace(curves, control_points=curves.control_points + [0.003, 0.0]))
     assert 0.0005 < shifted["mean_px"] < 0.003 + 1e-6
+    assert 0.0005 < max(shifted["probe_px"]) <= 0.003 + 1e-5
 
 
 def test_curves_auto_benchmark_measures_before_and_after_refinement(tmp_path, capsys):
@@ -199,6 +201,7 @@ def test_curves_auto_benchmark_measures_before_and_after_refinement(tmp_path, ca
     assert exact["recall"] == 1.0 and exact["mean_px"] < min(0.05, 0.5 * refined["mean_px"])
     assert exact["pieces"] != found["pieces"]
     assert " refined " in stdout and " exact " in stdout
+    assert all(len(row["probe_px"]) == 4 for row in doc["localisation"])  # the middle of each of the 4 curves
 
 
 def test_curves_auto_benchmark_measures_a_render_against_its_scene_curves(tmp_path, capsys):

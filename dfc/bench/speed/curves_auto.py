@@ -8,7 +8,9 @@ extracted with ``image_curves`` at its default settings. Both curve sets are fla
 - distance from the true curves to the extracted ones (px): mean and 95th percentile over the true length
   (``all``), and the same over the true length within 1 px of an extracted curve (``matched``);
 - recall: share of the true length within 0.5 px of an extracted curve;
-- false: share of the extracted length farther than 1 px from every true curve.
+- false: share of the extracted length farther than 1 px from every true curve;
+- probe: the mean distance from the middle of each true curve (where ``--zoom-steps`` puts its edge windows,
+  ``dfc.bench.speed.rate.rate_probes``) to the extracted curves (each one in the JSON: ``probe_px``).
 
 ``--pixel-filter SPEC`` (repeatable) makes the rasters with that pixel filter instead
 (``dfc.bench.pixel_filters.filtered_raster``), and the extractor detects the filter (``image_curves_filtered``,
@@ -86,11 +88,13 @@ def _weighted_percentile(values: np.ndarray, weights: np.ndarray, q: float) -> f
 
 def compare(true, found) -> dict:
     """Distances between two ``Curves`` over the same domain (see the module notes for the figures)."""
+    from .rate import rate_probes
+
     tp, tw = samples(true)
     fp, fw = samples(found)
     if not len(fp):
         return {"mean_px": None, "p95_px": None, "matched_mean_px": None, "matched_p95_px": None, "recall": 0.0,
-                "false": 0.0, "true_length_px": float(tw.sum()), "found_length_px": 0.0}
+                "false": 0.0, "true_length_px": float(tw.sum()), "found_length_px": 0.0, "probe_px": None}
     to_found = to_curves(tp, found)
     to_true = to_curves(fp, true)
     matched = to_found <= 1.0
@@ -103,6 +107,7 @@ def compare(true, found) -> dict:
         "false": float(fw[to_true > 1.0].sum() / fw.sum()),
         "true_length_px": float(tw.sum()),
         "found_length_px": float(fw.sum()),
+        "probe_px": [round(float(d), 5) for d in to_curves(rate_probes(true)[0], found)],
     }
 
 
@@ -201,11 +206,11 @@ def command(scene_names, size, spp, filters, refine, zoom_steps, renders, images
                "zoom": []}
     click.echo("targets: mean ≤ 0.1 px, p95 ≤ 0.3 px, recall ≥ 95 %, false ≤ 5 %; refined: mean ≤ 0.02 px, "
                "p95 ≤ 0.05 px")
-    click.echo(f"{'scene':>8} {'filter':>13} {'size':>9} {'stage':>7} {'mean':>6} {'p95':>6} {'m.mean':>6} "
-               f"{'m.p95':>6} {'recall':>7} {'false':>6} {'curves':>6} {'pieces':>6} {'s':>6}")
+    click.echo(f"{'scene':>8} {'filter':>13} {'size':>9} {'stage':>7} {'mean':>7} {'p95':>7} {'m.mean':>7} "
+               f"{'m.p95':>7} {'probe':>7} {'recall':>7} {'false':>6} {'curves':>6} {'pieces':>6} {'s':>6}")
 
     def fmt(v, pct=False):
-        return "–" if v is None else (f"{100 * v:6.1f}%" if pct else f"{v:6.3f}")
+        return "–" if v is None else (f"{100 * v:6.1f}%" if pct else f"{v:7.4f}")
 
     for name in scene_names or ([] if renders else list(SCENES)):
         scene = get_scene(name)
@@ -317,7 +322,7 @@ def _echo(row: dict, fmt) -> None:
     w, h = row["width"], row["height"]
     click.echo(f"{row['scene']:>8} {row['filter']:>13} {w:>4}x{h:<4} {row['stage']:>7} {fmt(row['mean_px'])} "
                f"{fmt(row['p95_px'])} {fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} "
-               f"{fmt(row['recall'], True)} {fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} "
+               f"{fmt(float(np.mean(row['probe_px'])) if row['probe_px'] else None)} {fmt(row['recall'], True)} {fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} "
                f"{row['seconds']:6.2f}")
 
 
