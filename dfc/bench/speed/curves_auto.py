@@ -320,9 +320,10 @@ def _exact_stage(pixels: np.ndarray, exact, spec: str | None):
 def _echo(row: dict, fmt) -> None:
     """One printed row of the localisation table."""
     w, h = row["width"], row["height"]
+    probe = float(np.mean(row["probe_px"])) if row["probe_px"] else None
     click.echo(f"{row['scene']:>8} {row['filter']:>13} {w:>4}x{h:<4} {row['stage']:>7} {fmt(row['mean_px'])} "
-               f"{fmt(row['p95_px'])} {fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} "
-               f"{fmt(float(np.mean(row['probe_px'])) if row['probe_px'] else None)} {fmt(row['recall'], True)} {fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} "
+               f"{fmt(row['p95_px'])} {fmt(row['matched_mean_px'])} {fmt(row['matched_p95_px'])} {fmt(probe)} "
+               f"{fmt(row['recall'], True)} {fmt(row['false'], True)} {row['curves']:>6} {row['pieces']:>6} "
                f"{row['seconds']:6.2f}")
 
 
