@@ -241,6 +241,8 @@ def test_curves_auto_zoom_row_encodes_three_curve_sets_at_equal_bytes():
     row = zoom_row(scene, pixels, moved, scene.curves, steps=2)
     assert row["true_bytes"] <= row["auto_bytes"] and row["refined_bytes"] <= row["auto_bytes"]
     assert all(np.isfinite(row[f"{k}_{z}x"]) for k in ("true", "auto", "refined") for z in (33, 100))
+    for k in ("true", "auto", "refined"):  # one window per curve, the middle of the quadrilateral's and the disc's
+        assert len(row[f"{k}_100x_windows"]) == 2 and abs(np.mean(row[f"{k}_100x_windows"]) - row[f"{k}_100x"]) < 0.01
     assert not any(k.startswith("exact") for k in row)
     with_exact = zoom_row(scene, pixels, moved, scene.curves, steps=2, exact=scene.curves)
     assert with_exact["exact_bytes"] <= with_exact["auto_bytes"] and np.isfinite(with_exact["exact_100x"])

@@ -139,7 +139,7 @@ def _in_pixels(scene, w: int, h: int):
 
 def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int, exact=None) -> dict:
     """Edge zoom PSNR (``dfc.bench.speed.rate.measure``: 33× and 100× windows on the middle of every true curve,
-    against the exact scene) of encodes of ``pixels`` at equal bytes, ``steps`` steps each (no mesh
+    against the exact scene; the mean, and at 100× each window's in curve order) of encodes of ``pixels`` at equal bytes, ``steps`` steps each (no mesh
     refinement rounds): the extracted curves ``found`` at the default size, then the true curves and the refined
     ones ``refined`` with that file's size as their byte target; a fourth of the curves ``exact`` when given (the
     true curves refined: stage ``exact``). ``scene`` is in the raster's pixel units."""
@@ -160,7 +160,8 @@ def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int, exact=None) 
                 continue
         m = measure(scene, b, pixels)
         row.update({f"{key}_bytes": m["bytes"], f"{key}_1x": round(m["psnr_1x"], 2),
-                    f"{key}_33x": round(m["edge_33x"], 2), f"{key}_100x": round(m["edge_100x"], 2)})
+                    f"{key}_33x": round(m["edge_33x"], 2), f"{key}_100x": round(m["edge_100x"], 2),
+                    f"{key}_100x_windows": m["edge_100x_windows"]})
     return row
 
 

@@ -9,8 +9,9 @@ raster, as ``samples/sample.exr`` is made) and encoded with ``dfc.codec.encode_i
 - **1× PSNR on all pixels** against the raster it was fitted to, rendered with the decoder's default anti-aliasing
   (``dfc.render.default_pixel_filter``: the file's pixel filter) and, for comparison, at the pixel centres only; plus the PSNR without the mixed pixels
   (``dfc.geometry.pixels.edge_pixels``) at the pixel centres;
-- **edge zoom PSNR** at 33× and 100× in windows centred on the middle of every input curve and on every open
-  curve end inside the domain (``rate_probes``), against the exact scene at the same points;
+- **edge zoom PSNR** at 33× and 100× in windows centred on the middle of every input curve (the mean, and each
+  window's in curve order: ``edge_33x_windows``) and on every open curve end inside the domain (``rate_probes``),
+  against the exact scene at the same points;
 - **smooth-region PSNR** at 33× in windows centred on the points farthest from every curve.
 
 Windows are rendered ``WINDOW`` pixels on their longer side with ``WINDOW_SPP`` points per pixel for the file and
@@ -109,7 +110,8 @@ def measure(scene, blob: bytes, pixels: np.ndarray) -> dict:
         "psnr_1x_unmixed": scale.psnr(pixels[~mixed], centres[~mixed]),
     }
     for z in EDGE_ZOOMS:
-        out[f"edge_{z}x"] = float(np.mean([_window_psnr(model, scene, p, z, scale) for p in edge]))
+        windows = [_window_psnr(model, scene, p, z, scale) for p in edge]
+        out[f"edge_{z}x"], out[f"edge_{z}x_windows"] = float(np.mean(windows)), [round(w, 2) for w in windows]
         if len(tips):
             out[f"tip_{z}x"] = float(np.mean([_window_psnr(model, scene, p, z, scale) for p in tips]))
     out[f"smooth_{SMOOTH_ZOOM}x"] = float(np.mean([_window_psnr(model, scene, p, SMOOTH_ZOOM, scale) for p in smooth]))
