@@ -193,7 +193,8 @@ def refine_curves(pixels: np.ndarray, curves: Curves, pixel_filter=None, *, roun
     out = replace(curves, control_points=cp / scale + offset)
     used = len(data["piece"])
     before, after = (float(np.sqrt(_total(loss_of, c, data) / used)) for c in (first, cp))
-    return Refined(out, moved_from_first(cp), used, before, after, "; ".join(warnings) or None, int(params.frozen.sum()), str(f))
+    return Refined(out, moved_from_first(cp), used, before, after, "; ".join(warnings) or None,
+                   int(params.frozen.sum()), str(f))
 
 
 def _solve(pixels, start, params, f, reach, points, discrete, rounds):
