@@ -237,6 +237,13 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     settings = _with_steps(settings or EncodeSettings(), "image")
     pixels = check_pixels(image)
     h, w, c = pixels.shape
+    asked = {}
+    if settings.residual_bytes and settings.target_bytes is not None:  # the field gets what the residual leaves
+        if settings.residual_bytes >= settings.target_bytes:
+            raise InputError(f"--residual-bytes {settings.residual_bytes} leaves nothing of --target-bytes "
+                             f"{settings.target_bytes} for the field")
+        asked = {"target_bytes": settings.target_bytes}
+        settings = replace(settings, target_bytes=settings.target_bytes - settings.residual_bytes)
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
     scale = quality_scale(pixels)
@@ -257,7 +264,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
         err[pixel_filter.filtered(edge_pixels(m.field.mesh, h, w)).ravel()] = 0.0
         return centres, err
 
-    info = encoder_info(settings, curves.source, {"input": f"image {w}x{h}", "pixels": w * h,
+    info = encoder_info(settings, curves.source, {**asked, "input": f"image {w}x{h}", "pixels": w * h,
                                                   "hdr": scale.tonemap,
                                                   **({"curves": curves_info} if curves_info else {})})
     stored = str(pixel_filter)
@@ -273,6 +280,9 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     blob, report = _finish(model, settings, info, seconds, w * h,
                            lambda m: (pixels, render(m, w, h, pixel_filter=pixel_filter)), scale,
                            pixel_size=(1.0, 1.0), value_map=value_map, units=units, pixel_filter=stored)
+    if settings.residual_bytes:
+        blob = _with_residual(blob, report, pixels, settings.residual_bytes, scale,
+                              lambda m: render(m, w, h, pixel_filter=pixel_filter), settings.device)
     report.pixel_filter = stored
     report.pixel_evidence = detection.evidence() if detection else None
     return blob, report
@@ -693,6 +703,36 @@ def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) 
     """(M,) float64 squared error of ``model`` at points xy (M, 2) against values (M, C), summed over channels."""
     pred = values_at(model, xy, device=settings.device, block=QUERY_BLOCK)
     return ((pred - values) ** 2).sum(axis=1)
+
+
+def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, n_bytes: int, scale: QualityScale,
+                   render_1x: Callable[[object], np.ndarray], device: str) -> bytes:
+    """``blob`` with an ``rESD`` chunk of at most ``n_bytes`` (framing included) holding what its field, rendered at
+    the input's size by ``render_1x``, leaves of ``pixels`` (H, W, C); ``report``'s sizes and PSNR updated to the
+    new file (``blob`` unchanged when the field leaves nothing). Raises InputError when ``n_bytes`` is too small
+    for the residual's smallest stream."""
+    from .field.residual import tone_map
+    from .io.container import with_residual
+    from .io.residual import encode_residual
+
+    clock = time.perf_counter()
+    base = render_1x(loads(blob, device=device, validate_mesh=False)).astype(np.float64)
+    space = tone_map if scale.tonemap else (lambda v: v)  # HDR light: where its PSNR is measured
+    try:  # 12 framing bytes, up to 3 of padding
+        payload = encode_residual(space(pixels.astype(np.float64)) - space(base), n_bytes - 15,
+                                  "tonemapped" if scale.tonemap else "values")
+    except InputError as exc:
+        raise InputError(f"--residual-bytes {n_bytes}: {exc} (framing: 15 bytes)") from None
+    if payload is None:
+        return blob
+    blob, chunk = with_residual(blob, payload)
+    report.psnr = scale.psnr(pixels, render_1x(loads(blob, device=device, validate_mesh=False)))
+    report.chunk_bytes = {**{k: v for k, v in report.chunk_bytes.items() if k != "DEND"}, "rESD": chunk,
+                          "DEND": report.chunk_bytes["DEND"]}
+    report.total_bytes = len(blob)
+    report.bits_per_pixel = 8.0 * len(blob) / (pixels.shape[0] * pixels.shape[1])
+    report.seconds["residual_s"] = time.perf_counter() - clock
+    return blob
 
 
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,

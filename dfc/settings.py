@@ -147,13 +147,16 @@ class StorageSettings:
     ``feature_coding`` ("predicted": ``FEAC``; "plain": zstd, the 1.0 ``FEAT``), ``weight_bits`` of the integer
     weight matrices (2..16: a sign and a magnitude; None: float16 ``MLPW``), ``mesh_bits`` of the vertex positions
     (1..23), ``mesh_coding`` ("derived": the free vertices on a coarse lattice and the triangles rebuilt by the
-    decoder, content 1.3; "draco": every vertex at ``mesh_bits`` and the triangles in a Draco stream)."""
+    decoder, content 1.3; "draco": every vertex at ``mesh_bits`` and the triangles in a Draco stream),
+    ``residual_bytes`` (≥ 0; images read whole): bytes given to a residual raster (``rESD``, ``dfc.io.residual``;
+    0: none), out of ``target_bytes`` when there is one."""
 
     feature_bits: int | None = None
     feature_coding: str = "predicted"
     weight_bits: int | None = 8
     mesh_bits: int = 20
     mesh_coding: str = "derived"
+    residual_bytes: int = 0
 
     def __post_init__(self):
         _integer(self, "feature_bits", 1, 16, optional=True)
@@ -161,6 +164,7 @@ class StorageSettings:
         _integer(self, "weight_bits", 2, 16, optional=True, note=" (a sign and a magnitude), or None for float16")
         _integer(self, "mesh_bits", 1, 23)
         _choice(self, "mesh_coding", MESH_CODINGS)
+        _integer(self, "residual_bytes", 0)
 
 
 @dataclass(frozen=True)

@@ -64,13 +64,13 @@ def _angle(d: np.ndarray) -> np.ndarray:
 
 
 def read_chunks(blob: bytes) -> dict[bytes, bytes]:
-    """Chunk type -> data (D §2; CRCs not checked, ancillary chunks dropped)."""
+    """Chunk type -> data (D §2; CRCs not checked, ancillary chunks other than rESD dropped)."""
     if blob[:8] != SIGNATURE:
         raise ValueError("not a .dfield file")
     pos, chunks = 16, {}
     while pos < len(blob):
         length, ctype = struct.unpack_from("<I4s", blob, pos)
-        if not ctype[0] & 0x20:
+        if not ctype[0] & 0x20 or ctype == b"rESD":
             chunks[ctype] = blob[pos + 8:pos + 8 + length]
         pos += 8 + length + (-length) % 4 + 4
     return chunks
@@ -404,6 +404,7 @@ class ReferenceField:
         self.domain = np.asarray(header["domain"], np.float64)
         self.mlp = mlp
         self.curve_faces, self.curve_ends, self.control_points = curve_faces, curve_ends, control_points
+        self.residual = None
         self._build_layout(disc_edges)
 
     @classmethod
@@ -424,6 +425,7 @@ class ReferenceField:
             raise ValueError(f"the bank has {bank.shape[1]} rows, the layout needs {field.n_rows}")
         field.bank = bank.astype(np.float64)
         field.pixel_filter = _pixel_filter(header.get("pixel_filter", "box"))
+        field.residual = _decode_resd(ch[b"rESD"]) if b"rESD" in ch else None
         return field
 
     def pixel(self, cx: float, cy: float, n: int = 64) -> np.ndarray:
@@ -613,7 +615,29 @@ class ReferenceField:
         return (1.0 - sigma)[:, None] * lo + sigma[:, None] * hi
 
     def __call__(self, xy, t=None, face=None) -> np.ndarray:
-        """f(x, t) (N, C) float64 (F §§7–8)."""
+        """f(x, t) (N, C) float64 (F §§7–8), plus R(x) with a residual raster (F §7.1)."""
+        f = self._network(xy, t, face)
+        if self.residual is None:
+            return f
+        space, r = self.residual
+        rx = self._residual(np.asarray(xy, np.float64), r)
+        if space == 0:
+            return f + rx
+        s = np.clip(f / (1 + np.abs(f)) + rx, -(1 - 2.0**-24), 1 - 2.0**-24)
+        return s / (1 - np.abs(s))
+
+    def _residual(self, xy: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """R(x) (N, C): the bilinear interpolant of the raster's values r on its pixel centres (F §7.1)."""
+        h, w = r.shape[:2]
+        x0, y0, x1, y1 = self.domain
+        u = np.clip((xy[:, 0] - x0) * w / (x1 - x0) - 0.5, 0, w - 1)
+        v = np.clip((xy[:, 1] - y0) * h / (y1 - y0) - 0.5, 0, h - 1)
+        i0, j0 = np.floor(u).astype(int), np.floor(v).astype(int)
+        i1, j1 = np.minimum(i0 + 1, w - 1), np.minimum(j0 + 1, h - 1)
+        a, b = (u - i0)[:, None], (v - j0)[:, None]
+        return (1 - b) * ((1 - a) * r[j0, i0] + a * r[j0, i1]) + b * ((1 - a) * r[j1, i0] + a * r[j1, i1])
+
+    def _network(self, xy, t, face) -> np.ndarray:
         rows, w, xy = self.weights(xy, face)
         z = self._blend(rows, w, t)
         n_layers = sum(1 for name in self.mlp if name.endswith(".weight"))
@@ -633,6 +657,22 @@ class ReferenceField:
             return np.asarray(self.header["value_offset"], np.float64) + \
                 np.asarray(self.header["value_scale"], np.float64) * z
         return np.expm1(z) if transform == "log" else z
+
+
+def _decode_resd(data: bytes) -> np.ndarray:
+    """(space, (H, W, C) float64 values) of an rESD payload (D §6.9)."""
+    import imagecodecs
+
+    version, codec, bits, c, space, w, h, lo, hi = struct.unpack_from("<BBBBB3xIIff", data)
+    if (version, codec) != (1, 1) or space > 1:
+        raise ValueError("unknown rESD version, codec or space")
+    pos, images = 24, []
+    for _ in range(-(-c // 3)):
+        (n,) = struct.unpack_from("<I", data, pos)
+        images.append(np.asarray(imagecodecs.avif_decode(data[pos + 4:pos + 4 + n])))
+        pos += 4 + n
+    samples = np.concatenate(images, axis=2)[..., :c].astype(np.float64)
+    return space, lo + (hi - lo) * samples / (2**bits - 1)
 
 
 def _pixel_filter(spec: str):

@@ -222,7 +222,8 @@ def test_raw_mesh_encoding_agrees():
     _agree(model, ref, np.concatenate([_random(ref, 1000, 8), _curve_points(ref, (0.5,))[0]]))
 
 
-@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived", "tiny_compact", "tiny_topc"])
+@pytest.mark.parametrize("name", ["tiny", "tiny_coded", "tiny_units", "tiny_derived", "tiny_compact", "tiny_topc",
+                                  "tiny_residual"])
 def test_golden_tiny_file_agrees(name):
     blob = (GOLDEN / f"{name}.dfield").read_bytes()
     model = from_contents(decode_dfield(blob))

@@ -83,6 +83,9 @@ def _budgets(ctx, param, value):
 @click.option("--refine-curves/--no-refine-curves", "refine_curves", default=True, show_default=True,
               help="--corpus: refine the curves of the --curves auto cases against the pixels for each budget, after "
                    "pruning, as dfc encode --curves auto does (dfc.geometry.sources.refine).")
+@click.option("--residual-share", type=click.FloatRange(0.0, 1.0, max_open=True), default=0.0, show_default=True,
+              metavar="F", help="dfc at a byte budget: give this share of it to a residual raster (dfc encode "
+                                "--residual-bytes); 0: none.")
 @click.option("--corpus-own-rate", is_flag=True,
               help="--corpus: also encode dfc without a byte target (the default encode) and measure every codec at "
                    "that file's size, at 1x.")
@@ -137,7 +140,8 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, corpus_own_rate, super_resolution, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
+            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, residual_share, corpus_own_rate,
+            super_resolution, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
     """Compare dfc with other methods at equal file size: fit dfc, then size every other method to the .dfield's
@@ -182,7 +186,8 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
 
         return {"steps": steps or BenchSettings.steps, "batch_size": batch_size or 1 << 14, "spp": spp,
                 "zooms": tuple(zooms) or ZOOMS, "max_triangles": max_triangles, "seed": seed,
-                "device": check_device(device), "pixel_grid": pixel_grid, "super_resolution": super_resolution}
+                "device": check_device(device), "pixel_grid": pixel_grid, "super_resolution": super_resolution,
+                "residual_share": residual_share}
 
     if corpus:
         if any(v is not None for v in (input_path, curves_path, scene, solve_path, target_bytes, budgets)) or rd \

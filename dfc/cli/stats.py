@@ -36,6 +36,7 @@ def file_stats(path) -> dict:
                        "mlp": info["mlp"]["parameters"], "mlp_weight_bits": info["mlp"]["weight_bits"] or None},
         "model": header["model"],
         "chunk_bytes": info["chunks"],
+        "residual": info["residual"],
         "bits_per_pixel": None if not pixels else 8.0 * info["file_bytes"] / pixels,
         "encoder": encoder,
     }
@@ -77,6 +78,9 @@ def command(input_path, json_path, quiet):
                                f"{p['feature_coding']})"),
         ("MLP parameters", f"{p['mlp']} (" + ("float16" if not p["mlp_weight_bits"] else
                                                f"{'/'.join(map(str, p['mlp_weight_bits']))}-bit weights") + ")"),
+        *([("residual", "{width}x{height}, {channels} channels, AVIF {bits}-bit, added to the {}".format(
+            "values" if s["residual"]["space"] == "values" else "tone-mapped values", **s["residual"]))]
+          if s["residual"] else []),
         ("bits per pixel", "n/a" if s["bits_per_pixel"] is None else f"{s['bits_per_pixel']:.3f}"),
     ]
     rows += [(f"chunk {name}", f"{size} bytes") for name, size in s["chunk_bytes"].items()]

@@ -94,6 +94,7 @@ class FieldModel(nn.Module):
         self.to(field.bank.device)
         self._quantization: dict | None = None
         self.value_map = None
+        self.residual = None  # a dfc.field.residual.ResidualGrid added to the values (a file's rESD chunk)
 
     # -- evaluation ---------------------------------------------------------------------------
     def features(self, xy: Tensor, t=None) -> Tensor:
@@ -101,7 +102,8 @@ class FieldModel(nn.Module):
         return self.field.features(xy, t)
 
     def forward(self, xy: Tensor, t=None, *, query: tuple[Tensor, Tensor] | PackedQuery | None = None) -> Tensor:
-        """Signal values (N, C) float32 at positions xy (N, 2) in domain units (float64 with a ``value_map``).
+        """Signal values (N, C) float32 at positions xy (N, 2) in domain units (float64 with a ``value_map``), the
+        ``residual`` grid's values added when there is one.
 
         ``query`` : optional ``self.field.query(xy)`` computed beforehand — rows idx (N, k) int64 and
         weights w (N, k) float32 of the bank's single slice, or its ``PackedQuery`` — so that training can reuse
@@ -109,8 +111,10 @@ class FieldModel(nn.Module):
         """
         if self._quantization is not None:  # evaluate each fake-quantised tensor once per call
             with parametrize.cached():
-                return self._forward(xy, t, query)
-        return self._forward(xy, t, query)
+                out = self._forward(xy, t, query)
+        else:
+            out = self._forward(xy, t, query)
+        return out if self.residual is None else self.residual.add(out, xy)
 
     def _forward(self, xy: Tensor, t, query) -> Tensor:
         with record_function(INTERPOLATE):

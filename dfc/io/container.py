@@ -48,6 +48,7 @@ __all__ = [
     "DfieldContents",
     "write_dfield",
     "read_dfield",
+    "with_residual",
     "read_dfield_info",
     "encode_dfield",
     "decode_dfield",
@@ -70,6 +71,10 @@ MAX_CHANNELS = 64
 CRITICAL_ORDER = ((b"HEAD", b"HEAC"), (b"MESH",), (b"TOPO", b"TOPC"), (b"FEAT", b"FEAC"), (b"MLPW", b"MLPQ", b"MLPC"),
                   (b"DEND",))
 """The critical chunks in file order; each position holds exactly one of its alternatives."""
+ANCILLARY = (b"rESD",)
+"""The ancillary chunks this version reads (at most one of each): the residual raster (§6.9)."""
+RESIDUAL_MINOR = 2
+"""The minor container version of a file with an ``rESD`` chunk (container 1.2); files without one stay 1.1."""
 FEATURE_CODINGS = ("plain", "predicted")
 """``encode_dfield``'s feature codings: ``FEAT`` (zstd of the quantised bank) or ``FEAC`` (``dfc.io.featcodec``)."""
 
@@ -108,12 +113,14 @@ class DfieldContents:
     mesh : Mesh, in decoder view (``dfc.io.meshcodec.roundtrip_mesh``)
     features : (S, N, K) float32, feature bank per time slice (S = 1 for a static field)
     mlp : dict name -> float32 array, the decoder's parameters (stored as float16)
+    residual : the ``rESD`` chunk's payload (§6.9, ``dfc.io.residual``), or None
     """
 
     header: dict
     mesh: Mesh
     features: np.ndarray
     mlp: dict[str, np.ndarray]
+    residual: bytes | None = None
 
 
 # ----------------------------------------------------------------------------------------------- header
@@ -239,7 +246,8 @@ def _chunk(ctype: bytes, data: bytes) -> bytes:
 
 
 def _split_chunks(buf: bytes) -> tuple[dict[bytes, memoryview], dict[str, int]]:
-    """Check the file header and framing (spec §2, §3); return critical chunk data and bytes per chunk."""
+    """Check the file header and framing (spec §2, §3); return the data of the critical chunks and of the known
+    ancillary ones (``ANCILLARY``), and bytes per chunk."""
     if len(buf) < _FILE_HEAD.size:
         raise FormatError("file is shorter than the 16-byte .dfield header")
     sig, major, minor, length = _FILE_HEAD.unpack_from(buf)
@@ -273,6 +281,10 @@ def _split_chunks(buf: bytes) -> tuple[dict[bytes, memoryview], dict[str, int]]:
         if ctype[0] & 0x20:  # ancillary
             if expect == 0:
                 raise FormatError(f"{name}: ancillary chunk before HEAD")
+            if ctype in ANCILLARY:
+                if ctype in chunks:
+                    raise FormatError(f"{name}: more than one")
+                chunks[ctype] = data
         elif ctype not in CRITICAL_ORDER[expect]:
             known = any(ctype in alternatives for alternatives in CRITICAL_ORDER)
             raise FormatError(f"{name}: {'critical chunk out of order' if known else 'unknown critical chunk'}"
@@ -611,13 +623,28 @@ def encode_dfield(contents: DfieldContents, *, feature_bits: int = DEFAULT_FEATU
         mlp = (b"MLPQ", _encode_mlpq(contents.mlp, weight_bits, compression_level))
     head = ((b"HEAC", compress(text, compression_level, HEADER_DICTIONARY)) if compact
             else (b"HEAD", compress(text, compression_level)))
-    parts = [head, (b"MESH", mesh_data), (b"TOPC" if compact else b"TOPO", topo_data), features, mlp, (b"DEND", b"")]
+    parts = [head, (b"MESH", mesh_data), (b"TOPC" if compact else b"TOPO", topo_data), features, mlp,
+             *([(b"rESD", bytes(contents.residual))] if contents.residual is not None else []), (b"DEND", b"")]
     body = b"".join(_chunk(t, d) for t, d in parts)
     sizes = {t.decode(): 12 + len(d) + (-len(d) % 4) for t, d in parts}
+    minor = CONTAINER_VERSION[1] if contents.residual is None else RESIDUAL_MINOR
+    return _file(body, minor), sizes
+
+
+def _file(body: bytes, minor: int) -> bytes:
     if _FILE_HEAD.size + len(body) > MAX_FILE_BYTES:
         raise FormatError("cannot write: the file would exceed 1 GiB")
-    head = _FILE_HEAD.pack(SIGNATURE, *CONTAINER_VERSION, _FILE_HEAD.size + len(body))
-    return head + body, sizes
+    return _FILE_HEAD.pack(SIGNATURE, CONTAINER_VERSION[0], minor, _FILE_HEAD.size + len(body)) + body
+
+
+def with_residual(buf: bytes, payload: bytes) -> tuple[bytes, int]:
+    """(the file ``buf`` with an ``rESD`` chunk holding ``payload`` before its ``DEND``, the chunk's bytes): the
+    critical chunks stay as they are, byte for byte. ``buf`` is a whole file ``encode_dfield`` wrote without one."""
+    end = len(buf) - 12
+    if buf[end + 4:end + 8] != b"DEND" or "rESD" in _split_chunks(buf)[1]:
+        raise ValueError("with_residual takes a whole .dfield file without an rESD chunk")
+    chunk = _chunk(b"rESD", payload)
+    return _file(buf[_FILE_HEAD.size:end] + chunk + buf[end:], RESIDUAL_MINOR), len(chunk)
 
 
 def write_dfield(path: str | os.PathLike, contents: DfieldContents, **options) -> dict[str, int]:
@@ -654,7 +681,13 @@ def decode_dfield(buf: bytes, *, validate_mesh: bool = True) -> DfieldContents:
         weights = _decode_mlpc(mlp, _mlpc_table(header, info["width"]))
     else:
         weights = _decode_mlp(mlp) if mlp_type == b"MLPW" else _decode_mlpq(mlp)
-    return DfieldContents(header=header, mesh=mesh, features=features, mlp=weights)
+    residual = chunks.get(b"rESD")
+    if residual is not None:  # its framing; the AVIF streams decode where the field is built (dfc.io.dfield)
+        from .residual import payload_streams
+
+        payload_streams(bytes(residual))
+    return DfieldContents(header=header, mesh=mesh, features=features, mlp=weights,
+                          residual=None if residual is None else bytes(residual))
 
 
 def _layout(mesh: Mesh):
@@ -678,8 +711,8 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
     features or weights (framing, CRCs and the header are still checked).
 
     Returns dict with keys container_version, content_version, file_bytes, chunks, header, mesh,
-    features, mlp; with ``with_mesh`` also ``decoded_mesh``, the ``Mesh`` (decoded and range-checked,
-    not run through ``Mesh.validate``).
+    features, mlp, residual (the ``rESD`` payload's head, ``dfc.io.residual.payload_head``, or None); with
+    ``with_mesh`` also ``decoded_mesh``, the ``Mesh`` (decoded and range-checked, not run through ``Mesh.validate``).
     """
     buf = _read(path, max_bytes)
     chunks, sizes = _split_chunks(buf)
@@ -697,6 +730,10 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
         table, weight_bits = _mlp_table(mlp_data), []
     topo_type, topo = _one(chunks, CRITICAL_ORDER[2])
     extra = {}
+    if b"rESD" in chunks:
+        from .residual import payload_head
+
+        extra["residual"] = payload_head(bytes(chunks[b"rESD"]))
     if with_mesh:
         extra["decoded_mesh"] = decode_mesh(bytes(chunks[b"MESH"]), bytes(topo), header["domain"],
                                             full_validate=False, topology=topo_type.decode())
@@ -710,5 +747,6 @@ def read_dfield_info(path: str | os.PathLike, *, max_bytes: int = MAX_FILE_BYTES
         "features": feat,
         "mlp": {"tensors": {name: list(shape) for name, shape in table},
                 "parameters": sum(math.prod(s) for _, s in table), "weight_bits": weight_bits},
+        "residual": None,
         **extra,
     }

@@ -193,6 +193,11 @@ def test_input_errors_are_one_line(encoded, tmp_path, capsys):
                    "--target-psnr", "40", "--target-bytes", "9000"], "--target-psnr"))
     cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o", tmp_path / "o15.dfield",
                    "--target-psnr", "40", "--epoch-pixels", "1000"], "--target-psnr"))
+    for k, (extra, match) in enumerate([(["--residual-bytes", "-1"], "--residual-bytes"),
+                                        (["--target-bytes", "3000", "--residual-bytes", "3000"], "leaves nothing"),
+                                        (["--steps", "5", "--residual-bytes", "20"], "smallest stream")]):
+        cases.append((["encode", SAMPLES / "sample.exr", "--curves", SAMPLES / "sample.json", "-o",
+                       tmp_path / f"o{16 + k}.dfield", *extra], match))
     for argv, match in cases:
         code, _, err = run(argv, capsys)
         assert_one_line_error(code, err, match)

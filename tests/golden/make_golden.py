@@ -9,7 +9,8 @@ pixel_size and pixel_filter; both are frozen the same way. valid/tiny_derived.df
 with the derived encoding (MESH encoding 2: the triangles rebuilt by the decoder), frozen too.
 valid/tiny_compact.dfield (content 1.4) holds the header as HEAC (compressed against the spec's header dictionary)
 and the weights as MLPC (no tensor table), frozen too. valid/tiny_topc.dfield (content 1.5) is what the encoder writes
-now: HEAC, MLPC and the discontinuities as TOPC (bit-packed). Each valid file has a .json with
+now: HEAC, MLPC and the discontinuities as TOPC (bit-packed); valid/tiny_residual.dfield (container 1.2) adds an rESD
+chunk (a residual raster, AVIF-coded), frozen. Each valid file has a .json with
 the values a decoder must reproduce. invalid/<rule>.dfield each break the rule their name gives. Regenerate only on
 a deliberate format change (update the spec's change log)."""
 
@@ -27,6 +28,7 @@ sys.path.insert(0, str(HERE.parents[1]))
 
 from dfc.io.container import decode_dfield, encode_dfield  # noqa: E402
 from dfc.io.meshcodec import compress  # noqa: E402
+from dfc.io.residual import decode_residual, encode_residual  # noqa: E402
 from tests.io.test_container import join, make_contents, split  # noqa: E402
 
 VALUE_MAP = {"value_offset": [1e6, -3e-5, 0.5], "value_scale": [1e-3, 2e-9, 4.0]}
@@ -40,6 +42,8 @@ def _write_valid(name: str, blob: bytes) -> None:
         "vertices": decoded.mesh.n_vertices, "features_shape": list(decoded.features.shape),
         "features_sum": float(np.asarray(decoded.features, np.float64).sum()),
         **({"pixel_filter": decoded.header["pixel_filter"]} if "pixel_filter" in decoded.header else {}),
+        **({"residual_sum": float(decode_residual(decoded.residual).astype(np.float64).sum())}
+           if decoded.residual is not None else {}),
     }, indent=1) + "\n")
 
 
@@ -77,6 +81,16 @@ def main():
     topc = encode_dfield(c, compression_level=19, weight_bits=6)[0]
     assert [t for t, _ in split(topc)] == [b"HEAC", b"MESH", b"TOPC", b"FEAC", b"MLPC", b"DEND"]
     _write_valid("tiny_topc", topc)
+    if not (HERE / "valid" / "tiny_residual.dfield").exists():
+        ramp = np.linspace(-0.01, 0.02, 6 * 8 * len(c.header["channels"]), dtype=np.float32)
+        payload = encode_residual(ramp.reshape(6, 8, -1), 4000)
+        _write_valid("tiny_residual", encode_dfield(replace(c, residual=payload), compression_level=19,
+                                                    weight_bits=6)[0])
+    residual = [list(x) for x in split((HERE / "valid" / "tiny_residual.dfield").read_bytes())]
+    assert [t for t, _ in residual] == [b"HEAC", b"MESH", b"TOPC", b"FEAC", b"MLPC", b"rESD", b"DEND"]
+    resd_short = [list(x) for x in residual]
+    resd_short[5][1] = resd_short[5][1][:-1]
+    resd_twice = residual[:6] + residual[5:]
     truncated_topc = [list(x) for x in split(topc)]
     truncated_topc[2][1] = truncated_topc[2][1][:-1]
     short_mlpc = [list(x) for x in split(compact)]
@@ -121,6 +135,8 @@ def main():
         "mlpc_payload_short": join(short_mlpc),
         "heac_declares_dictionary_id": join(dict_id),
         "topc_stream_truncated": join(truncated_topc),
+        "resd_stream_truncated": join(resd_short),
+        "resd_twice": join(resd_twice),
     }
     for name, data in invalid.items():
         (HERE / "invalid" / f"{name}.dfield").write_bytes(data)

@@ -420,6 +420,12 @@ def test_golden_files():
         c = read_dfield(path)
         assert c.mesh.n_vertices == expected["vertices"] and c.features.shape == tuple(expected["features_shape"])
         assert np.isclose(float(c.features.sum()), expected["features_sum"], rtol=1e-6)
+        assert (c.residual is None) == ("residual_sum" not in expected)
+        if c.residual is not None:  # the AVIF streams decode exactly: the sum is the spec's, to rounding
+            from dfc.io.residual import decode_residual
+
+            assert np.isclose(decode_residual(c.residual).astype(np.float64).sum(), expected["residual_sum"],
+                              rtol=1e-6)
     for path in invalid:
         with pytest.raises(FormatError):
             read_dfield(path)

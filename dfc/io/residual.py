@@ -1,0 +1,141 @@
+"""The ``rESD`` chunk (spec/dfield.md §6.9): a residual raster, what the field leaves of the input on its pixel grid,
+coded as AVIF images (through ``imagecodecs``), and back.
+
+Payload (little-endian): ``version`` u8 = 1, ``codec`` u8 = 1 (AVIF), ``bits`` u8 (10 or 12), ``channels`` u8 C,
+``space`` u8 (``SPACES``: where the residual adds to the field), 3 reserved bytes (0), ``width`` u32, ``height`` u32,
+``lo`` f32, ``hi`` f32, then ⌈C / 3⌉ streams, each as u32 length and bytes of an
+RGB image: channel k is plane k mod 3 of image ⌊k / 3⌋, the planes past C are 0 (libavif's quality does not act on
+grey images). A sample s decodes to ``lo + (hi − lo) · s / (2^bits − 1)``.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+from ..errors import FormatError, InputError
+
+__all__ = ["RESIDUAL_BITS", "SPACES", "decode_residual", "encode_residual", "payload_head", "payload_streams"]
+
+RESIDUAL_BITS = 12
+"""Bits per coded sample."""
+AVIF_SPEED = 2
+"""libavif's speed (0 slowest … 10)."""
+SPACES = ("values", "tonemapped")
+"""``space`` 0: the residual adds to the values; 1: to their tone map ``v / (1 + |v|)`` (HDR light), spec §6.9."""
+_HEAD = struct.Struct("<BBBBB3xIIff")
+_VERSION, _AVIF = 1, 1
+
+
+def _codecs():
+    try:
+        import imagecodecs
+    except ImportError:
+        raise InputError("a residual (rESD) needs imagecodecs: pip install 'dfc[residual]'") from None
+    return imagecodecs
+
+
+def _images(samples: np.ndarray) -> list[np.ndarray]:
+    """(H, W, C) samples as ⌈C / 3⌉ contiguous (H, W, 3) images, the planes past C zero."""
+    h, w, c = samples.shape
+    padded = np.zeros((h, w, -(-c // 3) * 3), samples.dtype)
+    padded[..., :c] = samples
+    return [np.ascontiguousarray(padded[..., k:k + 3]) for k in range(0, padded.shape[2], 3)]
+
+
+def _pack(samples: np.ndarray, lo: float, hi: float, space: int, level: int) -> bytes:
+    ic = _codecs()
+    h, w, c = samples.shape
+    streams = [bytes(ic.avif_encode(p, level=level, speed=AVIF_SPEED, bitspersample=RESIDUAL_BITS))
+               for p in _images(samples)]
+    head = _HEAD.pack(_VERSION, _AVIF, RESIDUAL_BITS, c, space, w, h, lo, hi)
+    return head + b"".join(struct.pack("<I", len(s)) + s for s in streams)
+
+
+def encode_residual(values: np.ndarray, n_bytes: int, space: str = "values") -> bytes | None:
+    """The ``rESD`` payload of ``values`` (H, W, C) float32 (a residual in ``space``, one of ``SPACES``) at the
+    highest AVIF quality whose payload takes at most ``n_bytes``; None when the values are all equal (nothing to
+    store). Raises InputError when not even the lowest quality fits."""
+    values = np.asarray(values, dtype=np.float32)
+    lo, hi = float(values.min()), float(values.max())
+    if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
+        return None
+    lo32, hi32 = float(np.float32(lo)), float(np.float32(hi))
+    top = (1 << RESIDUAL_BITS) - 1
+    samples = np.round((values.astype(np.float64) - lo32) / (hi32 - lo32) * top).clip(0, top).astype(np.uint16)
+    payloads: dict[int, bytes] = {}
+
+    def size(level: int) -> int:
+        if level not in payloads:
+            payloads[level] = _pack(samples, lo32, hi32, SPACES.index(space), level)
+        return len(payloads[level])
+
+    if size(0) > n_bytes:
+        raise InputError(f"the residual's smallest stream takes {size(0)} bytes, more than the {n_bytes} it may take")
+    lo_q, hi_q = 0, 100
+    if size(hi_q) <= n_bytes:
+        return payloads[hi_q]
+    while hi_q - lo_q > 1:
+        mid = (lo_q + hi_q) // 2
+        lo_q, hi_q = (mid, hi_q) if size(mid) <= n_bytes else (lo_q, mid)
+    return payloads[lo_q]
+
+
+def payload_head(data) -> dict:
+    """The head of a payload: ``bits``, ``channels``, ``space`` (one of ``SPACES``), ``width``, ``height``, ``lo``,
+    ``hi``; FormatError when it is short, unknown or invalid."""
+    if len(data) < _HEAD.size:
+        raise FormatError(f"rESD: {len(data)} bytes, shorter than its {_HEAD.size}-byte head")
+    version, codec, bits, c, space, w, h, lo, hi = _HEAD.unpack_from(data)
+    if version != _VERSION or codec != _AVIF:
+        raise FormatError(f"rESD: unknown version {version} or codec {codec}")
+    if any(data[5:8]):
+        raise FormatError("rESD: reserved bytes are not zero")
+    if bits not in (10, 12) or c < 1 or space >= len(SPACES) or w < 1 or h < 1 or \
+            not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
+        raise FormatError(f"rESD: invalid head (bits {bits}, {c} channels, space {space}, {w}x{h}, "
+                          f"range [{lo}, {hi}])")
+    return {"bits": bits, "channels": c, "space": SPACES[space], "width": w, "height": h, "lo": lo, "hi": hi}
+
+
+def payload_streams(data) -> list[bytes]:
+    """The AVIF streams of a payload whose head ``payload_head`` accepts; FormatError when their lengths do not
+    fill it exactly (checked without decoding them)."""
+    c = payload_head(data)["channels"]
+    pos, streams = _HEAD.size, []
+    for _ in range(-(-c // 3)):
+        if pos + 4 > len(data):
+            raise FormatError("rESD: a stream's length runs past the payload")
+        (n,) = struct.unpack_from("<I", data, pos)
+        if pos + 4 + n > len(data):
+            raise FormatError("rESD: a stream runs past the payload")
+        streams.append(bytes(data[pos + 4:pos + 4 + n]))
+        pos += 4 + n
+    if pos != len(data):
+        raise FormatError(f"rESD: {len(data) - pos} bytes after the last stream")
+    return streams
+
+
+def decode_residual(data) -> np.ndarray:
+    """(H, W, C) float32 values of an ``rESD`` payload; FormatError when it is damaged or inconsistent."""
+    data = bytes(data)
+    head = payload_head(data)
+    w, h, c, bits, lo, hi = (head[k] for k in ("width", "height", "channels", "bits", "lo", "hi"))
+    streams = payload_streams(data)
+    ic = _codecs()
+    planes = []
+    for stream in streams:
+        try:
+            plane = np.asarray(ic.avif_decode(stream))
+        except Exception as exc:  # the codec's own error types
+            raise FormatError(f"rESD: the AVIF stream does not decode ({exc})") from None
+        if plane.shape != (h, w, 3) or plane.dtype != np.uint16:
+            raise FormatError(f"rESD: a stream decodes to {plane.shape} {plane.dtype}, the head says {h}x{w}x3 "
+                              f"images of {bits} bits")
+        planes.append(plane)
+    samples = np.concatenate(planes, axis=2)[..., :c]
+    top = (1 << bits) - 1
+    if samples.max() > top:
+        raise FormatError(f"rESD: a sample exceeds {top}, the largest of {bits} bits")
+    return (lo + (hi - lo) * (samples.astype(np.float64) / top)).astype(np.float32)

@@ -1,0 +1,180 @@
+"""The residual raster (spec/dfield.md §6.9, spec/field.md "Residual"): its payload round trip and damage checks,
+bilinear interpolation through the pixel centres, the container's rESD chunk, and an encode that stores one."""
+
+import struct
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from dfc.bench.scenes import sample_scene
+from dfc.codec import EncodeSettings, check_domain, encode_image, loads
+from dfc.errors import FormatError, InputError
+from dfc.field.residual import ResidualGrid
+from dfc.io.container import decode_dfield, encode_dfield, with_residual
+from dfc.io.residual import decode_residual, encode_residual
+from dfc.metrics import quality_scale
+from dfc.render import render
+
+from .reference_decoder import ReferenceField
+
+pytest.importorskip("imagecodecs")
+
+
+def _smooth(h, w, c, seed=0):
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    rng = np.random.default_rng(seed)
+    return np.stack([np.sin(3 * x + rng.uniform(0, 6)) * np.cos(2 * y + k) * 0.01 for k in range(c)],
+                    axis=2).astype(np.float32)
+
+
+@pytest.mark.parametrize("channels", [1, 2, 3])
+def test_a_payload_fits_its_budget_and_decodes_to_its_values(channels):
+    values = _smooth(24, 40, channels)
+    payload = encode_residual(values, 4000)
+    assert len(payload) <= 4000
+    decoded = decode_residual(payload)
+    assert decoded.shape == values.shape and decoded.dtype == np.float32
+    span = float(values.max() - values.min())
+    assert np.abs(decoded - values).max() < 0.02 * span  # 12-bit samples, high quality
+    small = encode_residual(values, len(payload) - 1)
+    assert len(small) < len(payload)
+    assert np.abs(decode_residual(small) - values).mean() >= np.abs(decoded - values).mean()
+
+
+def test_a_budget_below_the_smallest_stream_and_a_constant_residual():
+    with pytest.raises(InputError, match="smallest stream takes"):
+        encode_residual(_smooth(32, 32, 3), 30)
+    assert encode_residual(np.full((8, 8, 3), 0.25, np.float32), 1000) is None
+
+
+def test_damaged_payloads_are_refused():
+    payload = encode_residual(_smooth(16, 16, 3), 3000)
+    for damaged, why in [(payload[:10], "shorter than"), (b"\x02" + payload[1:], "unknown version"),
+                         (payload[:4] + b"\x02" + payload[5:], "space 2"), (payload[:6] + b"\x01" + payload[7:],
+                                                                             "reserved"),
+                         (payload + b"\0", "after the last stream"), (payload[:-5], "runs past"),
+                         (payload[:40] + payload[40:80][::-1] + payload[80:], "rESD")]:
+        with pytest.raises(FormatError, match=why):
+            decode_residual(damaged)
+    head = bytearray(payload)
+    struct.pack_into("<I", head, 8, 17)  # the width the head declares differs from the stream's
+    with pytest.raises(FormatError, match="the head says"):
+        decode_residual(bytes(head))
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 6), st.integers(1, 6), st.floats(-3, 12), st.floats(-3, 12))
+def test_the_grid_interpolates_through_the_pixel_centres_and_is_continuous(w, h, x, y):
+    rng = np.random.default_rng(w * 7 + h)
+    values = rng.normal(size=(h, w, 2)).astype(np.float32)
+    domain = (-1.0, 2.0, -1.0 + 1.5 * w, 2.0 + 0.5 * h)  # pixels of 1.5 x 0.5
+    grid = ResidualGrid(values, domain, b"")
+    cx = -1.0 + 1.5 * (np.arange(w) + 0.5)
+    cy = 2.0 + 0.5 * (np.arange(h) + 0.5)
+    centres = torch.tensor([[a, b] for b in cy for a in cx], dtype=torch.float64)
+    assert np.allclose(grid(centres).numpy(), values.reshape(-1, 2), atol=1e-12)
+    p = torch.tensor([[x, y]], dtype=torch.float64)
+    out = grid(p).numpy()[0]
+    assert values.min(axis=(0, 1)).min() - 1e-9 <= out.min() and out.max() <= values.max() + 1e-9
+    eps = torch.tensor([[1e-7, -1e-7]], dtype=torch.float64)
+    assert np.allclose(grid(p + eps).numpy(), out, atol=1e-5)  # no jump anywhere: bilinear, clamped outside
+
+
+@pytest.fixture(scope="module", params=["sdr", "hdr"])
+def encoded(request):
+    scene = sample_scene()
+    image = scene.render(48, 48, window=None, spp=2) * (4.0 if request.param == "hdr" else 1.0)
+    curves = check_domain(scene.curves, 48, 48, fit=True)
+    plain, _ = encode_image(image, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=5000))
+    blob, report = encode_image(image, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=5000,
+                                                              residual_bytes=2000))
+    return image, curves, plain, blob, report
+
+
+def test_an_encode_with_a_residual_keeps_the_target_and_reports_the_file(encoded):
+    image, _, plain, blob, report = encoded
+    assert len(blob) <= 5000 and report.total_bytes == len(blob)
+    assert 0 < report.chunk_bytes["rESD"] <= 2000 and sum(report.chunk_bytes.values()) + 16 == len(blob)
+    assert struct.unpack_from("<HH", blob, 8) == (1, 2) and struct.unpack_from("<HH", plain, 8) == (1, 1)
+    model = loads(blob)
+    assert model.header["encoder"]["target_bytes"] == 5000 and model.header["encoder"]["residual_bytes"] == 2000
+    filt, scale = model.header["pixel_filter"], quality_scale(image)
+    assert model.residual.space == ("tonemapped" if scale.tonemap else "values")
+    with_residual_psnr = scale.psnr(image, render(model, 48, 48, pixel_filter=filt))
+    assert report.psnr == pytest.approx(with_residual_psnr, abs=1e-6)
+    model.residual = None  # the field alone: the residual must be what raises the file's PSNR
+    assert with_residual_psnr > scale.psnr(image, render(model, 48, 48, pixel_filter=filt)) + 1.0
+
+
+def test_the_rESD_chunk_leaves_the_critical_chunks_as_they_are(encoded):
+    _, _, plain, blob, _ = encoded
+    contents = decode_dfield(blob)
+    assert contents.residual is not None
+    again, chunk = with_residual(plain, contents.residual)
+    assert again[16:len(plain) - 12] == plain[16:-12]  # every critical chunk byte for byte
+    assert decode_dfield(again).residual == contents.residual
+    assert chunk == len(again) - len(plain) == 12 + len(contents.residual) + (-len(contents.residual) % 4)
+    rewritten, sizes = encode_dfield(contents)
+    assert decode_dfield(rewritten).residual == contents.residual and "rESD" in sizes
+    with pytest.raises(ValueError, match="without an rESD"):
+        with_residual(blob, contents.residual)
+
+
+def test_a_second_rESD_and_a_damaged_one_are_refused(encoded):
+    _, _, plain, blob, _ = encoded
+    payload = decode_dfield(blob).residual
+    end = len(blob) - 12
+    chunk = blob[end - (12 + len(payload) + (-len(payload) % 4)):end]
+    doubled = bytearray(blob[:end] + chunk + blob[end:])
+    struct.pack_into("<I", doubled, 12, len(doubled))
+    with pytest.raises(FormatError, match="rESD: more than one"):
+        decode_dfield(bytes(doubled))
+    bad, _ = with_residual(plain, payload[:-40])
+    with pytest.raises(FormatError, match="rESD"):
+        loads(bad)
+
+
+def test_residual_bytes_must_leave_the_field_something(encoded):
+    image, curves, *_ = encoded
+    with pytest.raises(InputError, match="leaves nothing of --target-bytes"):
+        encode_image(image, curves, EncodeSettings(steps=10, target_bytes=3000, residual_bytes=3000))
+
+
+def test_the_reference_decoder_adds_the_same_residual(encoded):
+    *_, blob, _ = encoded
+    model, reference = loads(blob), ReferenceField.from_bytes(blob)
+    assert reference.residual is not None
+    rng = np.random.default_rng(3)
+    x0, y0, x1, y1 = model.header["domain"]
+    xy = np.column_stack([rng.uniform(x0, x1, 400), rng.uniform(y0, y1, 400)])
+    with torch.no_grad():
+        ours = model(torch.from_numpy(xy)).double().numpy()
+    assert np.abs(ours - reference(xy)).max() < 1e-4
+    model.residual = None
+    with torch.no_grad():
+        alone = model(torch.from_numpy(xy)).double().numpy()
+    assert np.abs(ours - alone).max() > 1e-3  # the residual is there to be agreed on
+
+
+def test_without_imagecodecs_one_line_names_the_extra(encoded, monkeypatch):
+    *_, blob, _ = encoded
+    monkeypatch.setitem(__import__("sys").modules, "imagecodecs", None)  # import imagecodecs raises ImportError
+    with pytest.raises(InputError, match=r"pip install 'dfc\[residual\]'"):
+        loads(blob)
+
+
+def test_stats_describe_the_residual(encoded, tmp_path):
+    from dfc.cli.stats import file_stats
+
+    image, _, plain, blob, _ = encoded
+    (tmp_path / "r.dfield").write_bytes(blob)
+    (tmp_path / "p.dfield").write_bytes(plain)
+    stats = file_stats(tmp_path / "r.dfield")
+    hdr = quality_scale(image).tonemap
+    assert stats["residual"] == {**stats["residual"], "width": 48, "height": 48, "channels": 3, "bits": 12,
+                                 "space": "tonemapped" if hdr else "values"}
+    assert stats["container_version"] == "1.2" and "rESD" in stats["chunk_bytes"]
+    assert file_stats(tmp_path / "p.dfield")["residual"] is None
