@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import InputError, TargetBytesError
+from .errors import InputError, ResidualBytesError, TargetBytesError
 from .field.quantize import DEFAULT_FEATURE_BITS
 from .field.units import ValueMap, choose, describe
 from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
@@ -29,8 +29,8 @@ from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, decoder_hidden, features_at, image_mesh_size, mesh_size_set, sample_mesh_size,
-                   size_at, sized_mesh)
+                   SHORT_FIT_HIDDEN, auto_residual_bytes, decoder_hidden, features_at, image_mesh_size, mesh_size_set,
+                   sample_mesh_size, size_at, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -197,10 +197,35 @@ def _feature_bits(encode):
     return resolved
 
 
+def _residual_auto(encode):
+    """``encode_image`` with ``settings.residual_bytes`` "auto" resolved (``dfc.rate.auto_residual_bytes``) and
+    handed over as ``residual``; when the field cannot fit what the residual leaves of the target
+    (``TargetBytesError``) or the residual's smallest stream does not fit its share (``ResidualBytesError``), the
+    image is encoded again without one. Bytes given in ``settings`` are kept as given."""
+
+    @functools.wraps(encode)
+    def resolved(image, curves: Curves, settings: EncodeSettings | None = None, **kw):
+        settings = settings or EncodeSettings()
+        if settings.residual_bytes != "auto":
+            return encode(image, curves, settings, **kw)
+        from .io.image import check_pixels
+
+        n = auto_residual_bytes(check_pixels(image), settings.target_bytes)
+        if n:
+            try:
+                return encode(image, curves, settings, residual=n, **kw)
+            except (TargetBytesError, ResidualBytesError):
+                pass
+        return encode(image, curves, settings, residual=0, **kw)
+
+    return resolved
+
+
+@_residual_auto
 @_feature_bits
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
                  fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None,
-                 chosen_bits: bool = False):
+                 chosen_bits: bool = False, residual: int | None = None):
     """Encode a raster with its discontinuity curves.
 
     Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
@@ -217,6 +242,9 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
         --curves auto``: extracted from the image, with the extractor's settings)
     chosen_bits : the feature bits are the encoder's choice (``settings.feature_bits`` was None): a byte target's
         fill may store fewer (``_refine``)
+    residual : the bytes of the residual raster (``rESD``) as ``settings.residual_bytes`` "auto" resolved them
+        (``_residual_auto``); None: ``settings.residual_bytes``, an integer. A byte target is shared: the field gets
+        the target less these bytes.
 
     The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
     is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).
@@ -237,13 +265,17 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     settings = _with_steps(settings or EncodeSettings(), "image")
     pixels = check_pixels(image)
     h, w, c = pixels.shape
+    n_residual = settings.residual_bytes if residual is None else residual
+    if not isinstance(n_residual, int):
+        raise InputError(f"residual bytes must be an integer here, got {n_residual!r} (encode_image resolves "
+                         "\"auto\")")
     asked = {}
-    if settings.residual_bytes and settings.target_bytes is not None:  # the field gets what the residual leaves
-        if settings.residual_bytes >= settings.target_bytes:
-            raise InputError(f"--residual-bytes {settings.residual_bytes} leaves nothing of --target-bytes "
+    if n_residual and settings.target_bytes is not None:  # the field gets what the residual leaves
+        if n_residual >= settings.target_bytes:
+            raise InputError(f"--residual-bytes {n_residual} leaves nothing of --target-bytes "
                              f"{settings.target_bytes} for the field")
         asked = {"target_bytes": settings.target_bytes}
-        settings = replace(settings, target_bytes=settings.target_bytes - settings.residual_bytes)
+        settings = replace(settings, target_bytes=settings.target_bytes - n_residual)
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
     scale = quality_scale(pixels)
@@ -280,8 +312,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     blob, report = _finish(model, settings, info, seconds, w * h,
                            lambda m: (pixels, render(m, w, h, pixel_filter=pixel_filter)), scale,
                            pixel_size=(1.0, 1.0), value_map=value_map, units=units, pixel_filter=stored)
-    if settings.residual_bytes:
-        blob = _with_residual(blob, report, pixels, settings.residual_bytes, scale,
+    if n_residual:
+        blob = _with_residual(blob, report, pixels, n_residual, scale,
                               lambda m: render(m, w, h, pixel_filter=pixel_filter), settings.device)
     report.pixel_filter = stored
     report.pixel_evidence = detection.evidence() if detection else None
@@ -310,7 +342,7 @@ def encode_bands(source, curves: Curves, settings: EncodeSettings | None = None,
     from .train.bands import HeldOut, scan
     from .train.fit import MAX_DROPPED_FRACTION, fit_bands
 
-    _no_pixel_filter(settings, "an image read in bands (out of core)")
+    _image_only(settings, "an image read in bands (out of core)")
     settings = _with_steps(settings or EncodeSettings(), "image")
     rank, world = distributed.world()
     h, w = source.height, source.width
@@ -396,7 +428,7 @@ def encode_samples(samples, curves: Curves, settings: EncodeSettings | None = No
     from .train.fit import fit_samples
 
     settings = settings or EncodeSettings()
-    _no_pixel_filter(settings, "a sample set")
+    _image_only(settings, "a sample set")
     domain = getattr(samples, "domain", None)
     if domain is not None and not np.allclose(domain, curves.domain, rtol=1e-9, atol=0):
         raise InputError(f"the samples' domain {tuple(domain)} differs from the curves' {tuple(curves.domain)}")
@@ -454,11 +486,14 @@ def default_steps(kind: str, n_samples: int = 0, batch_size: int | None = None) 
     return sample_steps(n_samples, batch_size or BATCH_SIZE) if kind == "samples" else DEFAULT_STEPS
 
 
-def _no_pixel_filter(settings, kind: str) -> None:
-    """Raise ``InputError`` when ``settings`` name a pixel filter for an input ``kind`` that has no pixels to filter
-    or is not fitted with one (only images read whole are)."""
+def _image_only(settings, kind: str) -> None:
+    """Raise ``InputError`` when ``settings`` name a pixel filter or residual bytes for an input ``kind`` that has
+    no pixels to filter or is not fitted with one (only images read whole are), or no pixel grid to hold a
+    residual."""
     if getattr(settings, "pixel_filter", "auto") != "auto":
         raise InputError(f"a pixel filter applies to an image read whole, not to {kind}")
+    if getattr(settings, "residual_bytes", "auto") not in ("auto", 0):
+        raise InputError(f"--residual-bytes applies to an image read whole, not to {kind}")
 
 
 def _with_steps(settings: EncodeSettings, kind: str, n_samples: int = 0) -> EncodeSettings:
@@ -497,7 +532,7 @@ def encode_fem(solution, curves: Curves, settings: EncodeSettings | None = None,
     from .physics.fem import fem_curves, node_points, sample_fem
     from .train.fit import fit_samples
 
-    _no_pixel_filter(settings, "a FEM solution")
+    _image_only(settings, "a FEM solution")
     settings, fit_kw = _physical(_with_steps(fem_settings(settings or EncodeSettings()), "fem"))
     settings = replace(settings, refine=refine_rounds(settings))
     curves = fem_curves(solution, curves)
@@ -539,7 +574,7 @@ def encode_frames(sequence, curves: Curves, settings: EncodeSettings | None = No
     from .render import default_edge_spp, render
     from .train.fit import fit_frames
 
-    _no_pixel_filter(settings, "a frame sequence")
+    _image_only(settings, "a frame sequence")
     sequence = check_frames(sequence)
     frames = sequence.frames
     t, h, w, c = frames.shape
@@ -721,8 +756,8 @@ def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, n_byte
     try:  # 12 framing bytes, up to 3 of padding
         payload = encode_residual(space(pixels.astype(np.float64)) - space(base), n_bytes - 15,
                                   "tonemapped" if scale.tonemap else "values")
-    except InputError as exc:
-        raise InputError(f"--residual-bytes {n_bytes}: {exc} (framing: 15 bytes)") from None
+    except ResidualBytesError as exc:
+        raise ResidualBytesError(f"--residual-bytes {n_bytes}: {exc} (framing: 15 bytes)") from None
     if payload is None:
         return blob
     blob, chunk = with_residual(blob, payload)

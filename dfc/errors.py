@@ -37,6 +37,10 @@ class TargetBytesError(InputError):
     """A byte target is below the smallest file the curves allow with the encode's settings."""
 
 
+class ResidualBytesError(InputError):
+    """A residual's byte budget is below its smallest stream (``dfc.io.residual.encode_residual``)."""
+
+
 class FormatError(DfcError, ValueError):
     """A ``.dfield`` file is truncated, corrupt, hostile or of an unsupported version."""
 

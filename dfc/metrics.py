@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HDR_PEAK_RATIO", "QualityScale", "data_range", "is_hdr", "measure_space", "mse", "psnr", "quality_scale",
-           "step_size", "tonemap"]
+__all__ = ["HDR_PEAK_RATIO", "QualityScale", "data_range", "is_hdr", "measure_space", "mse", "noise_sigma", "psnr",
+           "quality_scale", "step_size", "tonemap"]
 
 HDR_PEAK_RATIO = 8.0
 """Colours are HDR light when their peak is above 1 and at least this many times their mean (three stops): the
@@ -117,6 +117,20 @@ def measure_space(values, like=None) -> np.ndarray:
         return np.sign(v) * np.abs(v) / (1.0 + np.abs(v))
     lo, hi = float(ref.min()), float(ref.max())
     return (v - lo) / (hi - lo) if hi > lo else np.zeros_like(v)
+
+
+def noise_sigma(image) -> float:
+    """Noise level of an image (H, W, C) in its ``measure_space`` (a share of its range, or tone-mapped for HDR
+    light): the median absolute finest-scale Haar diagonal detail over 2 × 2 blocks, / 0.6745 (Donoho and
+    Johnstone's estimator: white noise of standard deviation σ reads σ; smooth content and edges, which touch few
+    blocks, read about 0)."""
+    p = measure_space(image)
+    h, w = p.shape[0] // 2 * 2, p.shape[1] // 2 * 2
+    if h == 0 or w == 0:
+        return 0.0
+    p = p[:h, :w]
+    detail = (p[0::2, 0::2] - p[0::2, 1::2] - p[1::2, 0::2] + p[1::2, 1::2]) / 2
+    return float(np.median(np.abs(detail)) / 0.6745)
 
 
 def step_size(a, b, like) -> np.ndarray:

@@ -22,7 +22,8 @@ from .geometry.triangulate import DEFAULT_TRIANGLES, halving_points, triangulate
 
 __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
            "FILL_CARRY_POINTS", "FILL_RETRIES", "HALVING_COST", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
-           "REFINE_SHARE", "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "features_at",
+           "REFINE_SHARE", "RESIDUAL_MIN_BYTES", "RESIDUAL_NOISE", "RESIDUAL_SHARE", "SHORT_FIT_HIDDEN",
+           "TARGET_BYTES_PROBES", "auto_residual_bytes", "build_mesh", "field_bytes", "decoder_hidden", "features_at",
            "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size",
            "size_at", "sized_mesh"]
 
@@ -54,6 +55,16 @@ with fewer fill points, the last time, or once no cut can fit, at one feature bi
 bits): the refit's features can cost more bytes than the carried-over ones ``fill_points`` priced."""
 FILL_CARRY_POINTS = 1 << 14
 """``fill_points`` prices a candidate mesh with a carry-over fitted at about this many of the caller's points."""
+RESIDUAL_SHARE = 0.5
+"""``--residual-bytes auto`` under a byte target: the share of the target a residual raster gets (``rESD``), the field
+the rest (CHANGELOG.md, "A residual raster under a byte target")."""
+RESIDUAL_NOISE = 1e-4
+"""``--residual-bytes auto`` stores a residual only for images whose ``dfc.metrics.noise_sigma`` is below this: on a
+noisy image (a render's Monte Carlo noise, 0.9–2.6e-3 at 256 spp; σ 0.02) a residual codes the noise, which the field
+alone leaves out, and loses against the clean truth; clean images (solves, vector art, test charts) read 6e-6 or
+less."""
+RESIDUAL_MIN_BYTES = 512
+"""``--residual-bytes auto`` stores no residual of fewer bytes (a 256² AVIF's smallest streams take 300–500)."""
 FEATURE_BITS_FALLBACK = (8, 6)
 """Feature bits an encode with the default bits (``dfc.codec.EncodeSettings.feature_bits`` None) tries, in order,
 when its byte target is too small for the smallest mesh with ``dfc.field.quantize.DEFAULT_FEATURE_BITS`` (with a
@@ -329,3 +340,24 @@ def _forced_triangles(curves: Curves, settings) -> int:
     except TriangleBudgetError as e:
         return e.needed
     return 0
+
+
+def auto_residual_bytes(pixels: np.ndarray, target_bytes: int | None) -> int:
+    """The bytes ``--residual-bytes auto`` gives a residual raster of an image ``pixels`` (H, W, C) under
+    ``target_bytes``: ``RESIDUAL_SHARE`` of the target for a clean image (``dfc.metrics.noise_sigma`` below
+    ``RESIDUAL_NOISE``) when that is at least ``RESIDUAL_MIN_BYTES``, else 0 (no target: 0)."""
+    from .metrics import noise_sigma
+
+    if target_bytes is None:
+        return 0
+    share = round(RESIDUAL_SHARE * target_bytes)
+    return share if share >= RESIDUAL_MIN_BYTES and noise_sigma(pixels) < RESIDUAL_NOISE else 0
+
+
+def field_bytes(pixels: np.ndarray, target_bytes: int | None, residual_bytes: int | str) -> int | None:
+    """What a byte target leaves the field of an image ``pixels`` (H, W, C) when ``residual_bytes`` (an integer or
+    "auto", ``auto_residual_bytes``) go to a residual raster; None without a target."""
+    if target_bytes is None:
+        return None
+    n = auto_residual_bytes(pixels, target_bytes) if residual_bytes == "auto" else residual_bytes
+    return target_bytes - n

@@ -148,15 +148,16 @@ class StorageSettings:
     weight matrices (2..16: a sign and a magnitude; None: float16 ``MLPW``), ``mesh_bits`` of the vertex positions
     (1..23), ``mesh_coding`` ("derived": the free vertices on a coarse lattice and the triangles rebuilt by the
     decoder, content 1.3; "draco": every vertex at ``mesh_bits`` and the triangles in a Draco stream),
-    ``residual_bytes`` (≥ 0; images read whole): bytes given to a residual raster (``rESD``, ``dfc.io.residual``;
-    0: none), out of ``target_bytes`` when there is one."""
+    ``residual_bytes`` (images read whole): bytes given to a residual raster (``rESD``, ``dfc.io.residual``), out of
+    ``target_bytes`` when there is one: an integer ≥ 0 (0: none), or "auto" (``dfc.rate.auto_residual_bytes``: a
+    share of a byte target for a clean image, else none)."""
 
     feature_bits: int | None = None
     feature_coding: str = "predicted"
     weight_bits: int | None = 8
     mesh_bits: int = 20
     mesh_coding: str = "derived"
-    residual_bytes: int = 0
+    residual_bytes: int | str = "auto"
 
     def __post_init__(self):
         _integer(self, "feature_bits", 1, 16, optional=True)
@@ -164,7 +165,8 @@ class StorageSettings:
         _integer(self, "weight_bits", 2, 16, optional=True, note=" (a sign and a magnitude), or None for float16")
         _integer(self, "mesh_bits", 1, 23)
         _choice(self, "mesh_coding", MESH_CODINGS)
-        _integer(self, "residual_bytes", 0)
+        if self.residual_bytes != "auto":
+            _integer(self, "residual_bytes", 0, note=' or "auto"')
 
 
 @dataclass(frozen=True)

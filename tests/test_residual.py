@@ -2,6 +2,7 @@
 bilinear interpolation through the pixel centres, the container's rESD chunk, and an encode that stores one."""
 
 import struct
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -9,13 +10,15 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from dfc.bench.scenes import sample_scene
+from dfc.bench.pixel_filters import filtered_raster
+from dfc.bench.scenes import sample_scene, shapes_scene
 from dfc.codec import EncodeSettings, check_domain, encode_image, loads
 from dfc.errors import FormatError, InputError
 from dfc.field.residual import ResidualGrid
 from dfc.io.container import decode_dfield, encode_dfield, with_residual
 from dfc.io.residual import decode_residual, encode_residual
-from dfc.metrics import quality_scale
+from dfc.metrics import noise_sigma, quality_scale
+from dfc.rate import RESIDUAL_MIN_BYTES, RESIDUAL_NOISE, RESIDUAL_SHARE, auto_residual_bytes
 from dfc.render import render
 
 from .reference_decoder import ReferenceField
@@ -88,7 +91,8 @@ def encoded(request):
     scene = sample_scene()
     image = scene.render(48, 48, window=None, spp=2) * (4.0 if request.param == "hdr" else 1.0)
     curves = check_domain(scene.curves, 48, 48, fit=True)
-    plain, _ = encode_image(image, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=5000))
+    plain, _ = encode_image(image, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=5000,
+                                                          residual_bytes=0))
     blob, report = encode_image(image, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=5000,
                                                               residual_bytes=2000))
     return image, curves, plain, blob, report
@@ -178,3 +182,54 @@ def test_stats_describe_the_residual(encoded, tmp_path):
                                  "space": "tonemapped" if hdr else "values"}
     assert stats["container_version"] == "1.2" and "rESD" in stats["chunk_bytes"]
     assert file_stats(tmp_path / "p.dfield")["residual"] is None
+
+
+@pytest.mark.parametrize("sigma", [0.003, 0.01, 0.03])
+def test_noise_sigma_reads_white_noise_and_not_smooth_content_or_edges(sigma):
+    raster = filtered_raster(shapes_scene(), 64, 64, "box:4")
+    assert noise_sigma(raster) < 1e-6  # smooth regions and edges (few 2 x 2 blocks)
+    noisy = raster + np.random.default_rng(1).normal(0.0, sigma, raster.shape).astype(np.float32)
+    span = float(noisy.max() - noisy.min())  # measured as a share of the range
+    assert noise_sigma(noisy) == pytest.approx(sigma / span, rel=0.2)  # edges add a little at 64²
+
+
+def test_auto_gives_a_clean_image_a_share_of_the_target_and_a_noisy_one_none():
+    raster = filtered_raster(shapes_scene(), 64, 64, "box:4")
+    noisy = raster + np.random.default_rng(1).normal(0.0, 0.01, raster.shape).astype(np.float32)
+    assert noise_sigma(noisy) > RESIDUAL_NOISE
+    assert auto_residual_bytes(raster, 4000) == round(RESIDUAL_SHARE * 4000)
+    assert auto_residual_bytes(noisy, 4000) == 0 and auto_residual_bytes(raster, None) == 0
+    assert auto_residual_bytes(raster, int(RESIDUAL_MIN_BYTES / RESIDUAL_SHARE) - 2) == 0
+
+
+@pytest.fixture(scope="module")
+def shapes_64():
+    scene = shapes_scene()
+    return filtered_raster(scene, 64, 64, "box:4"), check_domain(scene.curves, 64, 64, fit=True)
+
+
+def test_auto_stores_a_residual_for_a_clean_image_under_a_target(shapes_64):
+    raster, curves = shapes_64
+    blob, report = encode_image(raster, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=4000))
+    assert len(blob) <= 4000 and 0 < report.chunk_bytes["rESD"] <= 2000
+    assert "residual_bytes" not in loads(blob).header["encoder"]  # auto is the default: not recorded
+    no_target, _ = encode_image(raster, curves, EncodeSettings(steps=60, batch_size=2048, max_triangles=200))
+    assert decode_dfield(no_target).residual is None
+
+
+def test_auto_falls_back_to_the_field_alone_when_the_field_cannot_fit_its_share(shapes_64):
+    raster, curves = shapes_64
+    settings = EncodeSettings(steps=30, batch_size=2048, feature_bits=10)
+    smallest = None
+    for target in (1100, 1500, 2000, 2600, 3400):  # the smallest target the field alone fits
+        try:
+            encode_image(raster, curves, replace(settings, target_bytes=target, residual_bytes=0))
+        except InputError:
+            continue
+        smallest = target
+        break
+    assert smallest is not None
+    with pytest.raises(InputError, match="too small"):  # the field gets half: it does not fit
+        encode_image(raster, curves, replace(settings, target_bytes=smallest, residual_bytes=smallest // 2))
+    blob, report = encode_image(raster, curves, replace(settings, target_bytes=smallest))  # auto
+    assert len(blob) <= smallest and "rESD" not in report.chunk_bytes

@@ -116,7 +116,7 @@ class BenchSettings:
     super_resolution : with a reference, also measure every method over the whole domain at this many times the
         input's pixels per axis (module notes); 0: not measured
     residual_share : in [0, 1): the share of ``target_bytes`` dfc's encode gives a residual raster
-        (``EncodeSettings.residual_bytes``); 0: none
+        (``EncodeSettings.residual_bytes``; 0: none); None: the encoder's default ("auto")
     """
 
     steps: int = IMAGE_STEPS
@@ -140,7 +140,7 @@ class BenchSettings:
     refine_curves: bool = True
     pixel_filter: str = "auto"
     super_resolution: int = SUPER_RESOLUTION
-    residual_share: float = 0.0
+    residual_share: float | None = None
 
     def check(self, budgeted: bool = False) -> None:
         """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
@@ -157,7 +157,7 @@ class BenchSettings:
                 raise InputError(f"{key} must be ≥ 1, got {getattr(self, key)}")
         if self.super_resolution != 0 and self.super_resolution < 2:
             raise InputError(f"super_resolution must be 0 (not measured) or a factor ≥ 2, got {self.super_resolution}")
-        if not 0.0 <= self.residual_share < 1.0:
+        if self.residual_share is not None and not 0.0 <= self.residual_share < 1.0:
             raise InputError(f"residual_share must be in [0, 1), got {self.residual_share}")
         if self.sweep_steps is not None and self.sweep_steps < 1:
             raise InputError(f"sweep_steps must be ≥ 1, got {self.sweep_steps}")
@@ -231,7 +231,8 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     enc = EncodeSettings(max_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
                          steps=None if default else settings.steps, batch_size=None if default else settings.batch_size,
                          seed=settings.seed, device=settings.device, pixel_filter=settings.pixel_filter,
-                         residual_bytes=round(settings.residual_share * (settings.target_bytes or 0)))
+                         residual_bytes="auto" if settings.residual_share is None else
+                         round(settings.residual_share * (settings.target_bytes or 0)))
     image = Image(pixels, list(channels), hdr=is_hdr(pixels))
     steps = default_steps("image") if default else settings.steps
     every = max(1, steps // 10)
@@ -243,11 +244,12 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
     pruned = refined = None
     if curves.source == "auto" and (settings.prune_curves or settings.refine_curves):
         from ..geometry.sources.auto import ready_curves
+        from ..rate import field_bytes
 
         curves, pruned, refined = ready_curves(pixels, curves, prune=settings.prune_curves,
                                                refine=settings.refine_curves, n_triangles=settings.max_triangles,
-                                               target_bytes=None if settings.target_bytes is None else
-                                               settings.target_bytes - enc.residual_bytes,
+                                               target_bytes=field_bytes(pixels, settings.target_bytes,
+                                                                        enc.residual_bytes),
                                                pixel_filter=settings.pixel_filter,
                                                detected=True)
         if refined is not None:  # the filter found with the curves, detected again along the refined ones

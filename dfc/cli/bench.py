@@ -83,9 +83,9 @@ def _budgets(ctx, param, value):
 @click.option("--refine-curves/--no-refine-curves", "refine_curves", default=True, show_default=True,
               help="--corpus: refine the curves of the --curves auto cases against the pixels for each budget, after "
                    "pruning, as dfc encode --curves auto does (dfc.geometry.sources.refine).")
-@click.option("--residual-share", type=click.FloatRange(0.0, 1.0, max_open=True), default=0.0, show_default=True,
-              metavar="F", help="dfc at a byte budget: give this share of it to a residual raster (dfc encode "
-                                "--residual-bytes); 0: none.")
+@click.option("--residual-share", type=click.FloatRange(0.0, 1.0, max_open=True), default=None, metavar="F",
+              help="dfc at a byte budget: give this share of it to a residual raster (dfc encode --residual-bytes); "
+                   "0: none  [default: the encoder's, --residual-bytes auto].")
 @click.option("--corpus-own-rate", is_flag=True,
               help="--corpus: also encode dfc without a byte target (the default encode) and measure every codec at "
                    "that file's size, at 1x.")

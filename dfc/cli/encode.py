@@ -108,11 +108,12 @@ def _curves_arg(ctx, param, value):
               show_default=True,
               help="derived: free vertices on a coarse lattice, triangles rebuilt by the decoder (content 1.3); "
                    "draco: every vertex at --mesh-bits, triangles in a Draco stream (1.2).")
-@click.option("--residual-bytes", type=int, default=StorageSettings.residual_bytes, show_default=True, metavar="N",
+@click.option("--residual-bytes", default=StorageSettings.residual_bytes, show_default=True, metavar="N|auto",
+              callback=lambda ctx, param, value: value if value == "auto" else _count(value, param),
               help="Image input read whole: after the fit, store what it leaves of the input (a residual raster on "
                    "the input's pixel grid, AVIF-coded, interpolated bilinearly at other resolutions) in at most N "
-                   "bytes, taken out of --target-bytes when given; 0: none. Raises the PSNR at 1x at high rates; "
-                   "needs imagecodecs (pip install 'dfc[residual]').")
+                   "bytes, taken out of --target-bytes when given; 0: none; auto: half of --target-bytes for a clean "
+                   "image (no measurable noise), else none. Needs imagecodecs (pip install 'dfc[residual]').")
 @click.option("--weight-bits", type=int, default=StorageSettings.weight_bits, show_default=True,
               help="Bits per integer MLP weight (2..16; per-row scales, learnt in the quantisation-aware steps); "
                    "0: float16.")
@@ -351,16 +352,19 @@ def _ready_curves(image, curves, settings, prune: bool, refine: bool, fit_curves
     """(curves, ``Pruned`` or None, ``Refined`` or None) of ``--prune-curves`` and ``--refine-curves``
     (``dfc.geometry.sources.auto.ready_curves``): ``curves`` on the image's domain (as the encoder takes them:
     ``dfc.codec.check_domain``) less those that do not earn their bytes for a mesh of ``settings.max_triangles``
-    (default size when None) in a file of ``settings.target_bytes``, then refined against the pixels through the
+    (default size when None) in a file of ``settings.target_bytes`` (less a residual's share, ``dfc.rate.field_bytes``),
+    then refined against the pixels through the
     filter of ``settings.pixel_filter`` (with ``--curves auto`` the one the extractor found, ``detected``; "auto":
     detected along the curves, as the encoder does); a detected filter is detected again along the refined curves
     (``dfc.geometry.sources.auto.refine_detected``)."""
     from ..codec import check_domain
     from ..geometry.sources.auto import ready_curves
+    from ..rate import field_bytes
 
     curves = check_domain(curves, image.width, image.height, fit_curves_to_image)
+    target = field_bytes(image.pixels, settings.target_bytes, settings.residual_bytes)  # a residual takes its share
     curves, pruned, refined = ready_curves(image.pixels, curves, prune=prune, refine=refine,
-                                           n_triangles=settings.max_triangles, target_bytes=settings.target_bytes,
+                                           n_triangles=settings.max_triangles, target_bytes=target,
                                            pixel_filter=settings.pixel_filter, detected=detected)
     return curves, pruned, refined
 
@@ -514,3 +518,14 @@ def _read_input(kind: str, paths: tuple[str, ...], times, channels, fields):
     from ..io.image import read_image
 
     return read_image(paths[0], channels)
+
+
+def _count(value: str, param) -> int:
+    """``value`` as an integer ≥ 0, else ``click.BadParameter``."""
+    try:
+        n = int(value)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise click.BadParameter(f"must be an integer ≥ 0 or auto, got {value!r}", param=param)
+    return n

@@ -14,7 +14,7 @@ import struct
 
 import numpy as np
 
-from ..errors import FormatError, InputError
+from ..errors import FormatError, InputError, ResidualBytesError
 
 __all__ = ["RESIDUAL_BITS", "SPACES", "decode_residual", "encode_residual", "payload_head", "payload_streams"]
 
@@ -56,7 +56,7 @@ def _pack(samples: np.ndarray, lo: float, hi: float, space: int, level: int) -> 
 def encode_residual(values: np.ndarray, n_bytes: int, space: str = "values") -> bytes | None:
     """The ``rESD`` payload of ``values`` (H, W, C) float32 (a residual in ``space``, one of ``SPACES``) at the
     highest AVIF quality whose payload takes at most ``n_bytes``; None when the values are all equal (nothing to
-    store). Raises InputError when not even the lowest quality fits."""
+    store). Raises ResidualBytesError (an InputError) when not even the lowest quality fits."""
     values = np.asarray(values, dtype=np.float32)
     lo, hi = float(values.min()), float(values.max())
     if not (np.isfinite(lo) and np.isfinite(hi)) or hi <= lo:
@@ -72,7 +72,8 @@ def encode_residual(values: np.ndarray, n_bytes: int, space: str = "values") -> 
         return len(payloads[level])
 
     if size(0) > n_bytes:
-        raise InputError(f"the residual's smallest stream takes {size(0)} bytes, more than the {n_bytes} it may take")
+        raise ResidualBytesError(f"the residual's smallest stream takes {size(0)} bytes, more than the {n_bytes} it "
+                                 "may take")
     lo_q, hi_q = 0, 100
     if size(hi_q) <= n_bytes:
         return payloads[hi_q]
