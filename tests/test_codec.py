@@ -154,10 +154,11 @@ def test_refinement_splits_where_the_error_is_and_reports_the_refined_file(scene
 @pytest.mark.parametrize("target", [9_000, 12_000])
 def test_target_bytes_sizes_the_file(scene, target):
     """The sizing probe (a random bank) leaves room that the default refinement round fills: the file lands within
-    a few per cent below the target; without refinement it stays below it."""
+    a few per cent below the target; without refinement it stays below it. (The field alone: a residual raster's
+    AVIF may reach its top quality below its share of a small image's target.)"""
     image = scene.render(64, 64, spp=1)
     curves = check_domain(scene.curves, 64, 64, fit=True)
-    settings = EncodeSettings(steps=2, batch_size=512, target_bytes=target)
+    settings = EncodeSettings(steps=2, batch_size=512, target_bytes=target, residual_bytes=0)
     blob, report = encode_image(image, curves, settings)
     assert 0.9 * target <= len(blob) <= target
     assert loads(blob).header["encoder"]["refine"] == 1 and "refine_s" in report.seconds

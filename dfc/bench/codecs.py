@@ -1,4 +1,4 @@
-"""Classical image codecs at equal bytes (through ``imagecodecs``, the ``bench`` extra): JPEG XL, AVIF, WebP and
+"""Classical image codecs at equal bytes (through ``imagecodecs``, a dependency of dfc): JPEG XL, AVIF, WebP and
 JPEG 2000, each given the same raster as the fields and the same byte budget.
 
 Every codec tries a few *configurations* (``configurations``): how the values become the codec's samples. JPEG XL

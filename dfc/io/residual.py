@@ -32,7 +32,7 @@ def _codecs():
     try:
         import imagecodecs
     except ImportError:
-        raise InputError("a residual (rESD) needs imagecodecs: pip install 'dfc[residual]'") from None
+        raise InputError("a residual (rESD) needs imagecodecs, a dependency of dfc: pip install imagecodecs") from None
     return imagecodecs
 
 
