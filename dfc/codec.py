@@ -744,8 +744,8 @@ def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, n_byte
                    render_1x: Callable[[object], np.ndarray], device: str) -> bytes:
     """``blob`` with an ``rESD`` chunk of at most ``n_bytes`` (framing included) holding what its field, rendered at
     the input's size by ``render_1x``, leaves of ``pixels`` (H, W, C); ``report``'s sizes and PSNR updated to the
-    new file (``blob`` unchanged when the field leaves nothing). Raises InputError when ``n_bytes`` is too small
-    for the residual's smallest stream."""
+    new file (``blob`` unchanged when the field leaves nothing). Raises ResidualBytesError (an InputError) when
+    ``n_bytes`` is too small for the residual's smallest stream."""
     from .field.residual import tone_map
     from .io.container import with_residual
     from .io.residual import encode_residual

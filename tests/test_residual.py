@@ -60,6 +60,10 @@ def test_damaged_payloads_are_refused():
                          (payload[:40] + payload[40:80][::-1] + payload[80:], "rESD")]:
         with pytest.raises(FormatError, match=why):
             decode_residual(damaged)
+    huge = bytearray(payload)
+    struct.pack_into("<II", huge, 8, 1 << 14, 1 << 13)  # 2^27 pixels: refused before any stream is decoded
+    with pytest.raises(FormatError, match="invalid head"):
+        decode_residual(bytes(huge))
     head = bytearray(payload)
     struct.pack_into("<I", head, 8, 17)  # the width the head declares differs from the stream's
     with pytest.raises(FormatError, match="the head says"):

@@ -113,7 +113,7 @@ def _curves_arg(ctx, param, value):
               help="Image input read whole: after the fit, store what it leaves of the input (a residual raster on "
                    "the input's pixel grid, AVIF-coded, interpolated bilinearly at other resolutions) in at most N "
                    "bytes, taken out of --target-bytes when given; 0: none; auto: half of --target-bytes for a clean "
-                   "image (no measurable noise), else none.)")
+                   "image (no measurable noise), else none.")
 @click.option("--weight-bits", type=int, default=StorageSettings.weight_bits, show_default=True,
               help="Bits per integer MLP weight (2..16; per-row scales, learnt in the quantisation-aware steps); "
                    "0: float16.")

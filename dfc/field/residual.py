@@ -1,4 +1,4 @@
-"""A residual raster added to the field (spec/field.md, "Residual"): values on the pixel centres of a W × H grid
+"""A residual raster added to the field (spec/field.md §7.1): values on the pixel centres of a W × H grid
 over the domain, interpolated bilinearly, constant beyond the outer centres. Continuous, so the field's jumps stay
 where the curves are."""
 

@@ -26,6 +26,8 @@ SPACES = ("values", "tonemapped")
 """``space`` 0: the residual adds to the values; 1: to their tone map ``v / (1 + |v|)`` (HDR light), spec §6.9."""
 _HEAD = struct.Struct("<BBBBB3xIIff")
 _VERSION, _AVIF = 1, 1
+MAX_PIXELS = 2**26
+"""The largest ``width · height`` a payload may declare (spec/dfield.md §4), checked before anything is decoded."""
 
 
 def _codecs():
@@ -93,7 +95,7 @@ def payload_head(data) -> dict:
         raise FormatError(f"rESD: unknown version {version} or codec {codec}")
     if any(data[5:8]):
         raise FormatError("rESD: reserved bytes are not zero")
-    if bits not in (10, 12) or c < 1 or space >= len(SPACES) or w < 1 or h < 1 or \
+    if bits not in (10, 12) or c < 1 or space >= len(SPACES) or w < 1 or h < 1 or w * h > MAX_PIXELS or \
             not (np.isfinite(lo) and np.isfinite(hi) and hi > lo):
         raise FormatError(f"rESD: invalid head (bits {bits}, {c} channels, space {space}, {w}x{h}, "
                           f"range [{lo}, {hi}])")
