@@ -43,9 +43,13 @@ class ResidualGrid(nn.Module):
         i0, j0 = u.floor().long(), v.floor().long()
         i1, j1 = (i0 + 1).clamp(max=w - 1), (j0 + 1).clamp(max=h - 1)
         fu, fv = (u - i0)[:, None], (v - j0)[:, None]
-        g = self.values.to(xy.device).double()
-        top = g[j0, i0] * (1 - fu) + g[j0, i1] * fu
-        bottom = g[j1, i0] * (1 - fu) + g[j1, i1] * fu
+        g = self.values.to(xy.device)
+
+        def at(j, i):  # the grid's float32 values at the N corners, widened exactly
+            return g[j, i].double()
+
+        top = at(j0, i0) * (1 - fu) + at(j0, i1) * fu
+        bottom = at(j1, i0) * (1 - fu) + at(j1, i1) * fu
         return top * (1 - fv) + bottom * fv
 
     def add(self, values: Tensor, xy: Tensor) -> Tensor:

@@ -20,8 +20,7 @@ from ..settings import EncodeSettings
 from .container import DfieldContents, decode_dfield, encode_dfield, read_dfield
 from .residual import decode_residual, payload_head
 
-__all__ = ["encode_model", "encoder_info", "from_contents", "load", "loads", "residual_grid", "storage",
-           "to_contents"]
+__all__ = ["encode_model", "encoder_info", "from_contents", "load", "loads", "storage", "to_contents"]
 
 _ARCH_KEYS = ("dim", "hidden", "layers", "activation", "oneblob_bins")
 
@@ -61,9 +60,8 @@ def to_contents(model: FieldModel, encoder: dict | None = None, *, pixel_size: t
         for i, lin in enumerate(model.decoder.linears()):
             mlp[f"layers.{i}.weight"] = _stored(lin, "weight")
             mlp[f"layers.{i}.bias"] = _stored(lin, "bias")
-    residual = getattr(model, "residual", None)
     return DfieldContents(header=header, mesh=model.field.mesh, features=features, mlp=mlp,
-                          residual=None if residual is None else residual.payload)
+                          residual=None if model.residual is None else model.residual.payload)
 
 
 def _stored(module, name: str) -> np.ndarray:
@@ -107,13 +105,13 @@ def from_contents(contents: DfieldContents, *, device: str = "cpu") -> FieldMode
                     raise FormatError(f"MLPW: layers.{i}.{p} has shape {tuple(w.shape)}, expected {tuple(target.shape)}")
                 target.copy_(w)
     if contents.residual is not None:
-        model.residual = residual_grid(contents.residual, h["domain"], len(h["channels"]))
+        model.residual = _residual_grid(contents.residual, h["domain"], len(h["channels"]))
     model.header = h
     model.eval()
     return model
 
 
-def residual_grid(payload: bytes, domain, channels: int) -> ResidualGrid:
+def _residual_grid(payload: bytes, domain, channels: int) -> ResidualGrid:
     """The ``ResidualGrid`` of an ``rESD`` payload over ``domain`` for ``channels`` channels; FormatError when the
     payload is damaged or has another number of channels."""
     values = decode_residual(payload)
