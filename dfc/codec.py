@@ -29,8 +29,8 @@ from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, auto_residual_bytes, decoder_hidden, features_at, image_mesh_size, mesh_size_set,
-                   sample_mesh_size, size_at, sized_mesh)
+                   SHORT_FIT_HIDDEN, decoder_hidden, features_at, image_mesh_size, mesh_size_set,
+                   residual_choices, sample_mesh_size, size_at, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -198,10 +198,12 @@ def _feature_bits(encode):
 
 
 def _residual_auto(encode):
-    """``encode_image`` with ``settings.residual_bytes`` "auto" resolved (``dfc.rate.auto_residual_bytes``) and
-    handed over as ``residual``; when the field cannot fit what the residual leaves of the target
-    (``TargetBytesError``) or the residual's smallest stream does not fit its share (``ResidualBytesError``), the
-    image is encoded again without one. Bytes given in ``settings`` are kept as given."""
+    """``encode_image`` with ``settings.residual_bytes`` "auto" resolved (``dfc.rate.residual_choices``) and
+    handed over as ``residual``: while the field cannot fit what a choice leaves of the target
+    (``TargetBytesError``) the next is tried; when none fits, or the residual cannot use its share
+    (``ResidualBytesError``: its smallest stream is larger, or its best would add error), the image is encoded
+    again without one. Bytes given in ``settings`` are kept as
+    given."""
 
     @functools.wraps(encode)
     def resolved(image, curves: Curves, settings: EncodeSettings | None = None, **kw):
@@ -210,12 +212,13 @@ def _residual_auto(encode):
             return encode(image, curves, settings, **kw)
         from .io.image import check_pixels
 
-        n = auto_residual_bytes(check_pixels(image), settings.target_bytes)
-        if n:
+        for n in residual_choices(check_pixels(image), settings.target_bytes):
             try:
                 return encode(image, curves, settings, residual=n, **kw)
-            except (TargetBytesError, ResidualBytesError):
-                pass
+            except TargetBytesError:
+                continue
+            except ResidualBytesError:
+                break
         return encode(image, curves, settings, residual=0, **kw)
 
     return resolved
@@ -745,7 +748,7 @@ def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, n_byte
     """``blob`` with an ``rESD`` chunk of at most ``n_bytes`` (framing included) holding what its field, rendered at
     the input's size by ``render_1x``, leaves of ``pixels`` (H, W, C); ``report``'s sizes and PSNR updated to the
     new file (``blob`` unchanged when the field leaves nothing). Raises ResidualBytesError (an InputError) when
-    ``n_bytes`` is too small for the residual's smallest stream."""
+    ``n_bytes`` is too small for the residual's smallest stream, or for one that lowers the error."""
     from .field.residual import tone_map
     from .io.container import with_residual
     from .io.residual import encode_residual

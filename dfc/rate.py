@@ -22,10 +22,10 @@ from .geometry.triangulate import DEFAULT_TRIANGLES, halving_points, triangulate
 
 __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
            "FILL_CARRY_POINTS", "FILL_RETRIES", "HALVING_COST", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
-           "REFINE_SHARE", "RESIDUAL_MIN_BYTES", "RESIDUAL_NOISE", "RESIDUAL_SHARE", "SHORT_FIT_HIDDEN",
-           "TARGET_BYTES_PROBES", "auto_residual_bytes", "build_mesh", "field_bytes", "decoder_hidden", "features_at",
-           "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set", "refinement_points", "sample_mesh_size",
-           "size_at", "sized_mesh"]
+           "REFINE_SHARE", "RESIDUAL_FIELD_BPP", "RESIDUAL_MIN_BYTES", "RESIDUAL_NOISE", "RESIDUAL_SHARE",
+           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "field_bytes",
+           "decoder_hidden", "features_at", "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set",
+           "refinement_points", "residual_choices", "sample_mesh_size", "size_at", "sized_mesh"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -58,6 +58,10 @@ FILL_CARRY_POINTS = 1 << 14
 RESIDUAL_SHARE = 0.5
 """``--residual-bytes auto`` under a byte target: the share of the target a residual raster gets (``rESD``), the field
 the rest (CHANGELOG.md, "A residual raster under a byte target")."""
+RESIDUAL_FIELD_BPP = 0.5
+"""``--residual-bytes auto`` under a byte target gives the field at most this many bits per pixel of the image (and
+at most ``1 − RESIDUAL_SHARE`` of the target), the residual the rest: past it a byte buys more dB in the residual
+(CHANGELOG.md, "The field's share capped at 0.5 bits per pixel")."""
 RESIDUAL_NOISE = 1e-4
 """``--residual-bytes auto`` stores a residual only for images whose ``dfc.metrics.noise_sigma`` is below this: on a
 noisy image (a render's Monte Carlo noise, 0.9–2.6e-3 at 256 spp; σ 0.02) a residual codes the noise, which the field
@@ -342,22 +346,26 @@ def _forced_triangles(curves: Curves, settings) -> int:
     return 0
 
 
-def auto_residual_bytes(pixels: np.ndarray, target_bytes: int | None) -> int:
-    """The bytes ``--residual-bytes auto`` gives a residual raster of an image ``pixels`` (H, W, C) under
-    ``target_bytes``: ``RESIDUAL_SHARE`` of the target for a clean image (``dfc.metrics.noise_sigma`` below
-    ``RESIDUAL_NOISE``) when that is at least ``RESIDUAL_MIN_BYTES``, else 0 (no target: 0)."""
+def residual_choices(pixels: np.ndarray, target_bytes: int | None) -> list[int]:
+    """The residual bytes ``--residual-bytes auto`` tries for an image ``pixels`` (H, W, C) under ``target_bytes``,
+    in order, while the field does not fit what they leave (``dfc.codec._residual_auto``): for a clean image
+    (``dfc.metrics.noise_sigma`` below ``RESIDUAL_NOISE``) the bytes that leave the field ``RESIDUAL_FIELD_BPP``
+    bits per pixel, when that is more than ``RESIDUAL_SHARE`` of the target, then that share; none under
+    ``RESIDUAL_MIN_BYTES``. Empty for a noisy image and without a target."""
     from .metrics import noise_sigma
 
     if target_bytes is None:
-        return 0
+        return []
     share = round(RESIDUAL_SHARE * target_bytes)
-    return share if share >= RESIDUAL_MIN_BYTES and noise_sigma(pixels) < RESIDUAL_NOISE else 0
+    capped = target_bytes - round(RESIDUAL_FIELD_BPP * pixels.shape[0] * pixels.shape[1] / 8)
+    choices = [n for n in dict.fromkeys((max(share, capped), share)) if n >= RESIDUAL_MIN_BYTES]
+    return choices if choices and noise_sigma(pixels) < RESIDUAL_NOISE else []
 
 
 def field_bytes(pixels: np.ndarray, target_bytes: int | None, residual_bytes: int | str) -> int | None:
     """What a byte target leaves the field of an image ``pixels`` (H, W, C) when ``residual_bytes`` (an integer or
-    "auto", ``auto_residual_bytes``) go to a residual raster; None without a target."""
+    "auto": the first of ``residual_choices``) go to a residual raster; None without a target."""
     if target_bytes is None:
         return None
-    n = auto_residual_bytes(pixels, target_bytes) if residual_bytes == "auto" else residual_bytes
+    n = (residual_choices(pixels, target_bytes) or [0])[0] if residual_bytes == "auto" else residual_bytes
     return target_bytes - n

@@ -149,7 +149,7 @@ class StorageSettings:
     (1..23), ``mesh_coding`` ("derived": the free vertices on a coarse lattice and the triangles rebuilt by the
     decoder, content 1.3; "draco": every vertex at ``mesh_bits`` and the triangles in a Draco stream),
     ``residual_bytes`` (images read whole): bytes given to a residual raster (``rESD``, ``dfc.io.residual``), out of
-    ``target_bytes`` when there is one: an integer ≥ 0 (0: none), or "auto" (``dfc.rate.auto_residual_bytes``: a
+    ``target_bytes`` when there is one: an integer ≥ 0 (0: none), or "auto" (``dfc.rate.residual_choices``: a
     share of a byte target for a clean image, else none)."""
 
     feature_bits: int | None = None

@@ -16,9 +16,12 @@ from dfc.codec import EncodeSettings, check_domain, encode_image, loads
 from dfc.errors import FormatError, InputError
 from dfc.field.residual import ResidualGrid
 from dfc.io.container import decode_dfield, encode_dfield, with_residual
-from dfc.io.residual import decode_residual, encode_residual
+import dfc.io.residual as residual_module
+from dfc.io.residual import (AVIF_MATRIX, RESIDUAL_BITS, decode_residual, encode_residual, payload_head,
+                             payload_streams)
 from dfc.metrics import noise_sigma, quality_scale
-from dfc.rate import RESIDUAL_MIN_BYTES, RESIDUAL_NOISE, RESIDUAL_SHARE, auto_residual_bytes
+import dfc.rate
+from dfc.rate import RESIDUAL_FIELD_BPP, RESIDUAL_MIN_BYTES, RESIDUAL_NOISE, RESIDUAL_SHARE, residual_choices
 from dfc.render import render
 
 from .reference_decoder import ReferenceField
@@ -40,9 +43,51 @@ def test_a_payload_fits_its_budget_and_decodes_to_its_values(channels):
     assert decoded.shape == values.shape and decoded.dtype == np.float32
     span = float(values.max() - values.min())
     assert np.abs(decoded - values).max() < 0.02 * span  # 12-bit samples, high quality
-    small = encode_residual(values, len(payload) - 1)
+    small = encode_residual(values, int(0.8 * len(payload)))
     assert len(small) < len(payload)
     assert np.abs(decode_residual(small) - values).mean() >= np.abs(decoded - values).mean()
+
+
+def test_the_streams_code_their_planes_as_they_are_and_the_top_quality_decodes_exactly():
+    values = _smooth(24, 40, 3)
+    payload = encode_residual(values, 1 << 20)  # room for the top quality: lossless
+    (stream,) = payload_streams(payload)
+    colr = stream.index(b"colrnclx") + 8  # colour information: primaries, transfer, matrix (u16 each)
+    assert int.from_bytes(stream[colr + 4:colr + 6], "big") == AVIF_MATRIX == 0  # identity: GBR, 4:4:4
+    lo, hi = float(values.min()), float(values.max())
+    step = (hi - lo) / ((1 << RESIDUAL_BITS) - 1)
+    assert np.abs(decode_residual(payload) - values).max() <= 0.5 * step * (1 + 1e-4)  # only the 12-bit rounding
+
+
+def test_a_raised_hi_spends_the_bytes_between_two_qualities_only_where_it_lowers_the_error(monkeypatch):
+    rng = np.random.default_rng(3)
+    values = (_smooth(48, 64, 3) + rng.normal(0.0, 0.002, (48, 64, 3))).astype(np.float32)
+
+    def error(payload):
+        return float(np.square(decode_residual(payload).astype(np.float64) - values).sum())
+
+    raised = 0
+    for budget in (2500, 3500, 5000, 7000, 10000):
+        payload = encode_residual(values, budget)
+        with monkeypatch.context() as m:
+            m.setattr(residual_module, "GAIN_FILL", 0.0)  # the highest quality that fits, as it is
+            plain = encode_residual(values, budget)
+        assert len(payload) <= budget and len(plain) <= budget
+        assert error(payload) <= error(plain)
+        if payload != plain:
+            assert payload_head(payload)["hi"] > float(values.max()) and error(payload) < error(plain)
+            raised += 1
+    assert raised >= 1
+
+
+def test_a_residual_that_would_add_error_is_refused(monkeypatch):
+    values = _smooth(24, 40, 3)
+    coded = decode_residual(encode_residual(values, 3000))
+    monkeypatch.setattr(residual_module, "decode_residual", lambda payload: 2.0 * values - 0.5 * coded)
+    assert encode_residual(values, 3000) is not None  # its error, (values − coded / 2)², is still the smaller
+    monkeypatch.setattr(residual_module, "decode_residual", lambda payload: -coded)
+    with pytest.raises(InputError, match="adds more error than it removes"):
+        encode_residual(values, 3000)
 
 
 def test_a_budget_below_the_smallest_stream_and_a_constant_residual():
@@ -199,9 +244,16 @@ def test_auto_gives_a_clean_image_a_share_of_the_target_and_a_noisy_one_none():
     raster = filtered_raster(shapes_scene(), 64, 64, "box:4")
     noisy = raster + np.random.default_rng(1).normal(0.0, 0.01, raster.shape).astype(np.float32)
     assert noise_sigma(noisy) > RESIDUAL_NOISE
-    assert auto_residual_bytes(raster, 4000) == round(RESIDUAL_SHARE * 4000)
-    assert auto_residual_bytes(noisy, 4000) == 0 and auto_residual_bytes(raster, None) == 0
-    assert auto_residual_bytes(raster, int(RESIDUAL_MIN_BYTES / RESIDUAL_SHARE) - 2) == 0
+    assert residual_choices(noisy, 4000) == [] and residual_choices(raster, None) == []
+    cap = round(RESIDUAL_FIELD_BPP * 64 * 64 / 8)  # the field's most at 64²
+    share = round(RESIDUAL_SHARE * 4000)
+    assert cap < 4000 - share  # the cap bites first, the plain share follows
+    assert residual_choices(raster, 4000) == [4000 - cap, share]
+    small = int(RESIDUAL_MIN_BYTES / RESIDUAL_SHARE) - 2  # the share is under the least a residual gets ...
+    assert residual_choices(raster, small) == ([small - cap] if small - cap >= RESIDUAL_MIN_BYTES else [])
+    assert residual_choices(raster, RESIDUAL_MIN_BYTES - 1) == []  # ... and so is everything
+    large = np.repeat(np.repeat(raster, 4, axis=0), 4, axis=1)  # 256²: the field's cap is over half of 4000 bytes
+    assert residual_choices(large, 4000) == [share]
 
 
 @pytest.fixture(scope="module")
@@ -235,3 +287,14 @@ def test_auto_falls_back_to_the_field_alone_when_the_field_cannot_fit_its_share(
         encode_image(raster, curves, replace(settings, target_bytes=smallest, residual_bytes=smallest // 2))
     blob, report = encode_image(raster, curves, replace(settings, target_bytes=smallest))  # auto
     assert len(blob) <= smallest and "rESD" not in report.chunk_bytes
+
+
+def test_auto_gives_the_residual_what_the_field_s_cap_leaves_when_the_field_fits_it(shapes_64, monkeypatch):
+    raster, curves = shapes_64
+    settings = EncodeSettings(steps=30, batch_size=2048, feature_bits=10)
+    field = len(encode_image(raster, curves, replace(settings, max_triangles=80, target_bytes=None))[0])
+    monkeypatch.setattr(dfc.rate, "RESIDUAL_FIELD_BPP", (field + 200) * 8 / (64 * 64))  # a cap the field fits
+    target = 2 * field + 1200  # the plain share would leave the field more than its cap
+    blob, report = encode_image(raster, curves, replace(settings, target_bytes=target))
+    assert len(blob) <= target and report.chunk_bytes["rESD"] > target - (field + 200) - 400
+    assert report.chunk_bytes["rESD"] > round(RESIDUAL_SHARE * target)

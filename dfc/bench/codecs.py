@@ -2,8 +2,9 @@
 JPEG 2000, each given the same raster as the fields and the same byte budget.
 
 Every codec tries a few *configurations* (``configurations``): how the values become the codec's samples. JPEG XL
-takes float input (linear values, HDR included) or 16-bit integers; AVIF 10- or 12-bit integers; WebP 8-bit (SDR
-input only); JPEG 2000 16-bit. Integer samples come from a *transfer*: ``identity`` for SDR input (values in [0, 1]
+takes float input (linear values, HDR included) or 16-bit integers; AVIF 10- or 12-bit integers (colour images
+in libavif's default YUV and, 4:4:4, with the identity matrix: the RGB planes coded as they are, which decode exactly
+and win at high rates on clean content); WebP 8-bit (SDR input only); JPEG 2000 16-bit. Integer samples come from a *transfer*: ``identity`` for SDR input (values in [0, 1]
 scaled to the code range), ``linear`` (the values' [min, max] mapped onto the code range) or ``log`` (log of the
 values plus 1e-4 of their maximum, for non-negative HDR input); the two numbers a non-identity transfer needs are
 counted as ``SIDE_BYTES``. For each configuration the quality is found by bisection: the highest quality whose
@@ -13,9 +14,10 @@ for HDR colours), as every PSNR of the comparison.
 
 Two codecs cannot always spend the budget. AVIF's quality has 64 steps (libavif's quantisers), which at high rates
 are 30–50 % apart in size: its stream may stay well below the budget, and ``Coded.next_bytes`` records the size of
-the next step up, which does not fit. (Filling the gap by coding a slightly downscaled raster at the next step
-scores far lower than the smaller full-size stream, so it is not done: CHANGELOG.md, "Measured and not made
-default".) A codec whose top quality still fits is *saturated* (WebP's lossy streams saturate early; small images
+the next step up, which does not fit. Such a stream is also tried at the next step with its samples spanning less
+of the code range (a *gain* below 1, stored as a linear transfer: ``SIDE_BYTES``), a finer step in between; the
+better scoring one is kept. (Filling the gap by coding a slightly downscaled raster at the next step scores far
+lower than the smaller full-size stream, so it is not done: CHANGELOG.md, "Measured and not made default".) A codec whose top quality still fits is *saturated* (WebP's lossy streams saturate early; small images
 saturate every codec).
 
 The decoded raster is shown at zoom through ``dfc.bench.baselines.upsample.PixelImage``.
@@ -45,6 +47,11 @@ JXL_EFFORT = 7
 AVIF_SPEED = 2
 """libavif's speed (0 slowest … 10): about as good as its slowest setting on the README sample, twice as fast
 (CHANGELOG.md, "Benchmark settings")."""
+GAIN_FILL = 0.97
+"""An integer knob's stream that leaves more than 3 % of the budget is also tried one step up with its samples
+spanning a share (the *gain*) of the code range (``_with_gain``), as ``dfc.io.residual`` codes its residual."""
+GAIN_MIN, GAIN_STEPS = 0.5, 6
+"""The gains tried: between this and 1, in this many halvings."""
 BISECTION_STEPS = 14
 """Bisection steps of a continuous quality knob."""
 LOG_EPS = 1e-4
@@ -56,8 +63,8 @@ def require_imagecodecs():
     try:
         import imagecodecs
     except ImportError:
-        raise InputError("the classical codecs (" + ", ".join(CODECS) + ") need imagecodecs: "
-                         "pip install 'dfc[bench]' (or leave them out of --methods)") from None
+        raise InputError("the classical codecs (" + ", ".join(CODECS) + ") need imagecodecs, a dependency of dfc: "
+                         "pip install imagecodecs (or leave them out of --methods)") from None
     return imagecodecs
 
 
@@ -107,8 +114,10 @@ def configurations(codec: str, pixels: np.ndarray) -> list[dict]:
         return [{"input": "float", "bits": 32, "transfer": "none"}] + [
             {"input": "uint", "bits": 16, "transfer": t} for t in transfers] + [
             {"input": "float", "bits": 32, "transfer": "none", "lossless": True}]
-    if codec == "avif":
-        return [{"input": "uint", "bits": b, "transfer": t} for b in (10, 12) for t in transfers]
+    if codec == "avif":  # colour images in YUV and, 4:4:4, with the identity matrix (GBR: its planes as they are)
+        matrices = ("yuv", "identity") if pixels.shape[2] == 3 else ("yuv",)
+        return [{"input": "uint", "bits": b, "transfer": t, **({"matrix": m} if m != "yuv" else {})}
+                for m in matrices for b in (10, 12) for t in transfers]
     if codec == "webp":
         return [{"input": "uint", "bits": 8, "transfer": "identity", "lossless": False},
                 {"input": "uint", "bits": 8, "transfer": "identity", "lossless": True}]
@@ -163,7 +172,7 @@ def encode(codec: str, pixels: np.ndarray, config: dict, q) -> bytes:
             data = np.ascontiguousarray(plane, dtype=np.float32)
         else:
             top = (1 << config["bits"]) - 1
-            unit = _forward(plane.astype(np.float64), config["transfer"], lo, hi)
+            unit = _forward(plane.astype(np.float64), config["transfer"], lo, hi) * config.get("gain", 1.0)
             data = np.ascontiguousarray(np.round(np.clip(unit, 0.0, 1.0) * top).astype(
                 np.uint8 if config["bits"] == 8 else np.uint16))
         if codec == "jpegxl":
@@ -171,7 +180,8 @@ def encode(codec: str, pixels: np.ndarray, config: dict, q) -> bytes:
             kw.update({"lossless": True} if q == LOSSLESS else {"distance": _jxl_distance(q)})
             out.append(ic.jpegxl_encode(data, effort=JXL_EFFORT, **kw))
         elif codec == "avif":
-            out.append(ic.avif_encode(data, level=int(q), speed=AVIF_SPEED, bitspersample=config["bits"]))
+            kw = {"pixelformat": "444", "matrix": 0} if config.get("matrix") == "identity" else {}
+            out.append(ic.avif_encode(data, level=int(q), speed=AVIF_SPEED, bitspersample=config["bits"], **kw))
         elif codec == "webp":
             rgb = data if data.ndim == 3 else np.ascontiguousarray(np.repeat(data[..., None], 3, axis=2))
             out.append(ic.webp_encode(rgb, lossless=True) if q == LOSSLESS else
@@ -184,8 +194,8 @@ def encode(codec: str, pixels: np.ndarray, config: dict, q) -> bytes:
 
 
 def stream_bytes(stream: bytes, config: dict) -> int:
-    """Bytes a stream costs: its length, plus ``SIDE_BYTES`` for a non-identity integer transfer."""
-    return len(stream) + (SIDE_BYTES if config["transfer"] in ("linear", "log") else 0)
+    """Bytes a stream costs: its length, plus ``SIDE_BYTES`` for a non-identity integer transfer or a gain."""
+    return len(stream) + (SIDE_BYTES if config["transfer"] in ("linear", "log") or "gain" in config else 0)
 
 
 def decode(codec: str, stream: bytes, config: dict, channels: int, value_range: tuple[float, float]) -> np.ndarray:
@@ -209,7 +219,7 @@ def decode(codec: str, stream: bytes, config: dict, channels: int, value_range: 
         if config["input"] == "float":
             values = data.astype(np.float32)
         else:
-            unit = data.astype(np.float64) / ((1 << config["bits"]) - 1)
+            unit = data.astype(np.float64) / (((1 << config["bits"]) - 1) * config.get("gain", 1.0))
             values = _inverse(unit, config["transfer"], *value_range).astype(np.float32)
         planes.append(values if values.ndim == 3 else values[..., None])
     return np.concatenate(planes, axis=2)
@@ -261,6 +271,28 @@ def _largest_fitting(size_of: Callable[[float], int], knob: _Knob, n_bytes: int)
     return lo, hi
 
 
+def _with_gain(codec: str, pixels: np.ndarray, config: dict, q, n_bytes: int, scale: QualityScale,
+               next_bytes: int) -> list[dict]:
+    """The stream of quality ``q`` (the step above the highest that fits) with its samples spanning the largest
+    share ``gain`` of the code range that fits ``n_bytes`` (``GAIN_MIN`` … 1, ``GAIN_STEPS`` halvings), as a
+    candidate of ``encode_to_budget``; none when not even ``GAIN_MIN`` fits."""
+    lo, hi, best = GAIN_MIN, 1.0, None
+    for _ in range(GAIN_STEPS):
+        gain = 0.5 * (lo + hi)
+        trial = {**config, "gain": gain}
+        stream = encode(codec, pixels, trial, q)
+        if stream_bytes(stream, trial) <= n_bytes:
+            lo, best = gain, (trial, stream)
+        else:
+            hi = gain
+    if best is None:
+        return []
+    trial, stream = best
+    decoded = decode(codec, stream, trial, pixels.shape[2], (float(pixels.min()), float(pixels.max())))
+    return [{"config": {**trial, **quality_parameters(codec, q)}, "bytes": stream_bytes(stream, trial),
+             "score": scale.psnr(pixels, decoded), "decoded": decoded, "next_bytes": next_bytes}]
+
+
 def encode_to_budget(codec: str, pixels: np.ndarray, n_bytes: int, scale: QualityScale) -> Coded:
     """``codec``'s best stream of ``pixels`` (H, W, C) float32 in at most ``n_bytes`` (module docstring), scored by
     PSNR on ``scale`` (``dfc.metrics.quality_scale(pixels)``) against ``pixels``. Raises InputError when WebP is
@@ -291,6 +323,8 @@ def encode_to_budget(codec: str, pixels: np.ndarray, n_bytes: int, scale: Qualit
         found.append({"config": {**config, **quality_parameters(codec, q)}, "bytes": cost(q),
                       "score": scale.psnr(pixels, decoded), "decoded": decoded,
                       "next_bytes": None if q_next is None else cost(q_next)})
+        if knob is not None and knob.integer and q_next is not None and cost(q) < GAIN_FILL * n_bytes:
+            found.extend(_with_gain(codec, pixels, config, q_next, n_bytes, scale, cost(q_next)))
     if not found:
         raise InputError(f"a budget of {n_bytes} bytes is too small for {codec}: its smallest stream of this image "
                          f"takes {int(smallest)} bytes")

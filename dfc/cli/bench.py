@@ -102,8 +102,7 @@ def _budgets(ctx, param, value):
 @click.option("--zoom", "zooms", type=float, multiple=True, callback=_zooms,
               help="Zoom factor (repeatable)  [default: 1, 10, 33, 100].")
 @click.option("--methods", help="Comma-separated methods to run  [default: dfc,hashgrid,relu,raster,jpegxl,avif,"
-              "webp,jpeg2k (webp only for SDR input); with --solve: dfc,tanh_field,siren,tanh_mlp]. The classical "
-              "codecs need the bench extra: pip install 'dfc[bench]'.")
+              "webp,jpeg2k (webp only for SDR input); with --solve: dfc,tanh_field,siren,tanh_mlp].")
 @click.option("--bytes", "target_bytes", type=click.IntRange(min=1),
               help="Byte budget; with dfc, its file is sized to it (else every method gets the .dfield's size).")
 @click.option("--rd", is_flag=True, help="Rate-distortion sweep: run the comparison at every --budgets and write "

@@ -112,8 +112,9 @@ def _curves_arg(ctx, param, value):
               callback=lambda ctx, param, value: value if value == "auto" else _count(value, param),
               help="Image input read whole: after the fit, store what it leaves of the input (a residual raster on "
                    "the input's pixel grid, AVIF-coded, interpolated bilinearly at other resolutions) in at most N "
-                   "bytes, taken out of --target-bytes when given; 0: none; auto: half of --target-bytes for a clean "
-                   "image (no measurable noise), else none.")
+                   "bytes, taken out of --target-bytes when given; 0: none; auto: for a clean image (no measurable "
+                   "noise) half of --target-bytes, or more where half would leave the field over 0.5 bits per "
+                   "pixel; else none.")
 @click.option("--weight-bits", type=int, default=StorageSettings.weight_bits, show_default=True,
               help="Bits per integer MLP weight (2..16; per-row scales, learnt in the quantisation-aware steps); "
                    "0: float16.")

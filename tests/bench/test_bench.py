@@ -192,15 +192,15 @@ def test_bad_requests_fail_before_writing(tmp_path, args, error):
     assert not (tmp_path / "b" / "results.json").exists()
 
 
-@pytest.mark.parametrize("module,args", [
-    ("imagecodecs", ["--methods", "jpegxl", "--bytes", "3000"]),
-    ("imagecodecs", []),  # the default methods include the codecs
-    ("matplotlib", ["--rd", "--methods", "relu"]),
+@pytest.mark.parametrize("module,args,hint", [
+    ("imagecodecs", ["--methods", "jpegxl", "--bytes", "3000"], "pip install imagecodecs"),
+    ("imagecodecs", [], "pip install imagecodecs"),  # the default methods include the codecs
+    ("matplotlib", ["--rd", "--methods", "relu"], "pip install 'dfc[bench]'"),
 ])
-def test_a_missing_extra_is_one_error_line(tmp_path, capsys, monkeypatch, module, args):
+def test_a_missing_dependency_is_one_error_line(tmp_path, capsys, monkeypatch, module, args, hint):
     monkeypatch.setitem(sys.modules, module, None)
     code, _, err = run(["bench", "--scene", "shapes", *args, *TINY, "-o", tmp_path / "b"], capsys)
-    assert_one_line_error(code, err, "pip install 'dfc[bench]'")
+    assert_one_line_error(code, err, hint)
     assert not (tmp_path / "b").exists()
 
 

@@ -61,6 +61,17 @@ def test_hdr_input_keeps_its_range(codec, hdr):
             assert stream_bytes(stream, config) == len(stream) + codecs.SIDE_BYTES
 
 
+def test_avif_tries_colour_images_with_the_identity_matrix_too(sdr):
+    identity = [c for c in configurations("avif", sdr) if c.get("matrix") == "identity"]
+    assert {(c["bits"], c["transfer"]) for c in identity} == {(10, "identity"), (12, "identity")}
+    stream = encode("avif", sdr, identity[1], 100)  # 12 bits, top quality: lossless in GBR
+    colr = stream.index(b"colrnclx") + 8  # colour information: primaries, transfer, matrix (u16 each)
+    assert int.from_bytes(stream[colr + 4:colr + 6], "big") == 0
+    out = decode("avif", stream, identity[1], 3, (float(sdr.min()), float(sdr.max())))
+    assert np.abs(out - sdr).max() <= 0.5 / 4095 + 1e-6  # only the 12-bit rounding
+    assert all("matrix" not in c for c in configurations("avif", np.ascontiguousarray(sdr[..., :1])))
+
+
 @pytest.mark.parametrize("channels", [1, 2])
 def test_grey_and_other_channel_counts(channels, sdr):
     pixels = np.ascontiguousarray(sdr[..., :channels])
@@ -86,6 +97,25 @@ def test_streams_fill_the_budget_or_the_next_step_overflows(codec, budget, sdr):
         assert coded.next_bytes > budget
 
 
+def test_avif_fills_the_gap_between_two_qualities_with_a_gain_only_where_it_scores_higher(sdr, monkeypatch):
+    gains = 0
+    for budget in (1500, 2500, 4000, 6000):
+        coded = encode_to_budget("avif", sdr, budget, QualityScale(1.0))
+        with monkeypatch.context() as m:
+            m.setattr(codecs, "GAIN_FILL", 0.0)  # every configuration's highest quality that fits, as it is
+            plain = encode_to_budget("avif", sdr, budget, QualityScale(1.0))
+        assert coded.n_bytes <= budget and coded.score >= plain.score
+        gained = [c for c in coded.candidates if "gain" in c["config"]]
+        for c in gained:
+            assert codecs.GAIN_MIN <= c["config"]["gain"] < 1.0 and c["bytes"] <= budget
+        gains += len(gained)
+        if "gain" in coded.config:
+            assert coded.score > plain.score
+            assert stream_bytes(encode("avif", sdr, coded.config, coded.config["quality"]), coded.config) == \
+                coded.n_bytes  # a gain's two numbers are counted
+    assert gains >= 1
+
+
 def test_budget_too_small_and_hdr_webp_are_refused(sdr, hdr):
     with pytest.raises(InputError, match="too small for jpeg2k"):
         encode_to_budget("jpeg2k", sdr, 50, QualityScale(1.0))
@@ -97,7 +127,7 @@ def test_missing_imagecodecs_names_the_extra(monkeypatch):
     import sys
 
     monkeypatch.setitem(sys.modules, "imagecodecs", None)
-    with pytest.raises(InputError, match=r"pip install 'dfc\[bench\]'"):
+    with pytest.raises(InputError, match=r"pip install imagecodecs"):
         codecs.require_imagecodecs()
 
 
