@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from dfc.bench.docs import check, figures, generate, load_results, results_markdown
+from dfc.bench.docs import check, figures, generate, line_colours, load_results, results_markdown
 from dfc.bench.results import validate
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -50,6 +50,13 @@ def test_check_reports_a_changed_result_and_a_missing_figure(tmp_path):
     doc["tables"][0]["rows"][0][1] = "3"
     (results / "r.json").write_text(json.dumps(doc))
     assert len(check(results, docs)) == 1
+
+
+def test_a_method_keeps_its_colour_in_every_panel_of_a_figure():
+    panels = [["dfc", "JPEG XL", "AVIF", "WebP", "JPEG 2000"], ["dfc", "JPEG XL", "AVIF", "JPEG 2000"], ["AVIF"]]
+    colour = line_colours(panels, ["c0", "c1", "c2", "c3"])
+    assert colour == {"dfc": "black", "JPEG XL": "c0", "AVIF": "c1", "WebP": "c2", "JPEG 2000": "c3"}
+    assert line_colours([["a", "b", "c"]], ["x", "y"])["c"] == "x"  # the cycle repeats
 
 
 def test_a_file_off_the_schema_is_refused_by_name(tmp_path):

@@ -17,7 +17,7 @@ import click
 
 from .results import validate
 
-__all__ = ["PAGES", "check", "figures", "generate", "load_results", "results_markdown"]
+__all__ = ["PAGES", "check", "figures", "generate", "line_colours", "load_results", "results_markdown"]
 
 PAGES = {
     "corpus": "Real content at 0.25–2 bits per pixel: the `dfc bench --corpus` baseline",
@@ -142,6 +142,14 @@ def results_markdown(results: list[tuple[str, dict]], results_link: str = "../be
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
+def line_colours(labels: list[list[str]], cycle: list[str]) -> dict[str, str]:
+    """One colour per line label across a figure's panels (``labels``: each panel's labels, in order): ``dfc``
+    black, the others ``cycle``'s colours in the order they first appear, so a method keeps its colour in a panel
+    that lacks another (WebP on HDR input)."""
+    others = list(dict.fromkeys(label for panel in labels for label in panel if label != "dfc"))
+    return {"dfc": "black", **{label: cycle[k % len(cycle)] for k, label in enumerate(others)}}
+
+
 def _draw(fig_name: str, fig: dict, path: Path) -> None:
     from .rd import require_matplotlib
 
@@ -152,20 +160,24 @@ def _draw(fig_name: str, fig: dict, path: Path) -> None:
     f, axes = plt.subplots(rows, cols, figsize=(4.4 * cols, 3.5 * rows), squeeze=False)
     for ax in axes.ravel()[len(panels):]:
         ax.set_visible(False)
+    colour = line_colours([[s["label"] for s in series] for _, series in panels],
+                          plt.rcParams["axes.prop_cycle"].by_key()["color"])
+    handles = {}
     for ax, (panel, series) in zip(axes.ravel(), panels):
         for s in series:
             if not s["x"]:
                 continue
             dfc = s["label"].startswith("dfc")
-            ax.plot(s["x"], s["y"], marker="o", label=s["label"], linewidth=2.5 if dfc else 1.2,
-                    color="black" if s["label"] == "dfc" else None)
+            (line,) = ax.plot(s["x"], s["y"], marker="o", label=s["label"], linewidth=2.5 if dfc else 1.2,
+                              color=colour[s["label"]])
+            handles.setdefault(s["label"], line)
         if series and series[0].get("x_log2"):
             ax.set_xscale("log", base=2)
         ax.set_title(panel, fontsize=10)
         ax.set_xlabel(series[0].get("x_label", "") if series else "")
         ax.set_ylabel(series[0].get("y_label", "") if series else "")
         ax.grid(True, which="both", alpha=0.3)
-    axes.ravel()[0].legend(fontsize=7)
+    axes.ravel()[0].legend(list(handles.values()), list(handles), fontsize=7)  # every label, in a panel that may lack some
     f.suptitle(fig["title"], fontsize=11)
     f.tight_layout()
     f.savefig(path, format="png", dpi=100)
