@@ -202,8 +202,7 @@ def _residual_auto(encode):
     handed over as ``residual``: while the field cannot fit what a choice leaves of the target
     (``TargetBytesError``) the next is tried; when none fits, or the residual cannot use its share
     (``ResidualBytesError``: its smallest stream is larger, or its best would add error), the image is encoded
-    again without one. Bytes given in ``settings`` are kept as
-    given."""
+    again without one. Bytes given in ``settings`` are kept as given."""
 
     @functools.wraps(encode)
     def resolved(image, curves: Curves, settings: EncodeSettings | None = None, **kw):

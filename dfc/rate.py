@@ -61,7 +61,7 @@ the rest (CHANGELOG.md, "A residual raster under a byte target")."""
 RESIDUAL_FIELD_BPP = 0.5
 """``--residual-bytes auto`` under a byte target gives the field at most this many bits per pixel of the image (and
 at most ``1 − RESIDUAL_SHARE`` of the target), the residual the rest: past it a byte buys more dB in the residual
-(CHANGELOG.md, "The field's share capped at 0.5 bits per pixel")."""
+(CHANGELOG.md, "The residual's share capped, its AVIF planes coded as they are and its bytes filled")."""
 RESIDUAL_NOISE = 1e-4
 """``--residual-bytes auto`` stores a residual only for images whose ``dfc.metrics.noise_sigma`` is below this: on a
 noisy image (a render's Monte Carlo noise, 0.9–2.6e-3 at 256 spp; σ 0.02) a residual codes the noise, which the field

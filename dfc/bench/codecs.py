@@ -3,11 +3,11 @@ JPEG 2000, each given the same raster as the fields and the same byte budget.
 
 Every codec tries a few *configurations* (``configurations``): how the values become the codec's samples. JPEG XL
 takes float input (linear values, HDR included) or 16-bit integers; AVIF 10- or 12-bit integers (colour images
-in libavif's default YUV and, 4:4:4, with the identity matrix: the RGB planes coded as they are, which decode exactly
-and win at high rates on clean content); WebP 8-bit (SDR input only); JPEG 2000 16-bit. Integer samples come from a *transfer*: ``identity`` for SDR input (values in [0, 1]
-scaled to the code range), ``linear`` (the values' [min, max] mapped onto the code range) or ``log`` (log of the
-values plus 1e-4 of their maximum, for non-negative HDR input); the two numbers a non-identity transfer needs are
-counted as ``SIDE_BYTES``. For each configuration the quality is found by bisection: the highest quality whose
+in libavif's default YUV and, 4:4:4, with the identity matrix: the RGB planes coded as they are, which decode
+exactly and win at high rates on clean content); WebP 8-bit (SDR input only); JPEG 2000 16-bit. Integer samples
+come from a *transfer*: ``identity`` for SDR input (values in [0, 1] scaled to the code range), ``linear`` (the
+values' [min, max] mapped onto the code range) or ``log`` (log of the values plus 1e-4 of their maximum, for
+non-negative HDR input); the two numbers a non-identity transfer needs are counted as ``SIDE_BYTES``. For each configuration the quality is found by bisection: the highest quality whose
 stream fits the budget; JPEG XL's and WebP's lossless streams are tried too. Of the configurations, the stream with
 the best 1× PSNR on the training raster is kept, measured on the input's ``dfc.metrics.quality_scale`` (tone-mapped
 for HDR colours), as every PSNR of the comparison.
@@ -17,8 +17,9 @@ are 30–50 % apart in size: its stream may stay well below the budget, and ``Co
 the next step up, which does not fit. Such a stream is also tried at the next step with its samples spanning less
 of the code range (a *gain* below 1, stored as a linear transfer: ``SIDE_BYTES``), a finer step in between; the
 better scoring one is kept. (Filling the gap by coding a slightly downscaled raster at the next step scores far
-lower than the smaller full-size stream, so it is not done: CHANGELOG.md, "Measured and not made default".) A codec whose top quality still fits is *saturated* (WebP's lossy streams saturate early; small images
-saturate every codec).
+lower than the smaller full-size stream, so it is not done: CHANGELOG.md, "Measured and not made default".) A
+codec whose top quality still fits is *saturated* (WebP's lossy streams saturate early; small images saturate every
+codec).
 
 The decoded raster is shown at zoom through ``dfc.bench.baselines.upsample.PixelImage``.
 """

@@ -177,7 +177,7 @@ def _draw(fig_name: str, fig: dict, path: Path) -> None:
         ax.set_xlabel(series[0].get("x_label", "") if series else "")
         ax.set_ylabel(series[0].get("y_label", "") if series else "")
         ax.grid(True, which="both", alpha=0.3)
-    axes.ravel()[0].legend(list(handles.values()), list(handles), fontsize=7)  # every label, in a panel that may lack some
+    axes.ravel()[0].legend(list(handles.values()), list(handles), fontsize=7)  # every label, even one it lacks
     f.suptitle(fig["title"], fontsize=11)
     f.tight_layout()
     f.savefig(path, format="png", dpi=100)

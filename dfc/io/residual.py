@@ -16,17 +16,18 @@ import numpy as np
 
 from ..errors import FormatError, InputError, ResidualBytesError
 
-__all__ = ["AVIF_MATRIX", "RESIDUAL_BITS", "SPACES", "decode_residual", "encode_residual", "payload_head", "payload_streams"]
+__all__ = ["AVIF_MATRIX", "RESIDUAL_BITS", "SPACES", "decode_residual", "encode_residual", "payload_head",
+           "payload_streams"]
 
 RESIDUAL_BITS = 12
 """Bits per coded sample."""
 AVIF_SPEED = 4
-"""libavif's speed (0 slowest … 10): three times as fast as speed 2 at 0.1–0.2 dB less at the same bytes (CHANGELOG.md,
-"The residual's AVIF codes its planes as they are")."""
+"""libavif's speed (0 slowest … 10): three times as fast as speed 2, 0.02–0.2 dB lower at the same bytes
+(CHANGELOG.md, "The residual's share capped, its AVIF planes coded as they are and its bytes filled")."""
 AVIF_MATRIX = 0
-"""The streams' matrix coefficients (ISO/IEC 23091-2): 0, identity, codes the three planes as they are (GBR, 4:4:4),
-so their samples decode exactly; the residual's planes are nearly independent, where YUV gains nothing (CHANGELOG.md,
-"The residual's AVIF codes its planes as they are")."""
+"""The streams' matrix coefficients (ISO/IEC 23091-2): 0, identity, codes the three planes as they are (GBR,
+4:4:4), so their samples decode exactly; the residual's planes are nearly independent, where YUV gains nothing
+(CHANGELOG.md, "The residual's share capped, its AVIF planes coded as they are and its bytes filled")."""
 SPACES = ("values", "tonemapped")
 """``space`` 0: the residual adds to the values; 1: to their tone map ``v / (1 + |v|)`` (HDR light), spec §6.9."""
 GAIN_FILL = 0.97
