@@ -311,11 +311,16 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                                    tonemap=fit_scale.tonemap, pixel_filter=pixel_filter)
     seconds["mesh_s"] += sizing_s
     seconds = {"detect_s": detect_s, **seconds}
-    blob, report = _finish(model, settings, info, seconds, w * h,
-                           lambda m: (pixels, render(m, w, h, pixel_filter=pixel_filter)), scale,
+    rendered = []  # the written file's 1x render, which the residual completes
+
+    def truth(m):
+        rendered[:] = [render(m, w, h, pixel_filter=pixel_filter)]
+        return pixels, rendered[0]
+
+    blob, report = _finish(model, settings, info, seconds, w * h, truth, scale,
                            pixel_size=(1.0, 1.0), value_map=value_map, units=units, pixel_filter=stored)
     if n_residual:
-        blob = _with_residual(blob, report, pixels, n_residual, scale,
+        blob = _with_residual(blob, report, pixels, rendered[0], n_residual, scale,
                               lambda m: render(m, w, h, pixel_filter=pixel_filter), settings.device)
     report.pixel_filter = stored
     report.pixel_evidence = detection.evidence() if detection else None
@@ -742,18 +747,19 @@ def _error(model, xy: np.ndarray, values: np.ndarray, settings: EncodeSettings) 
     return ((pred - values) ** 2).sum(axis=1)
 
 
-def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, n_bytes: int, scale: QualityScale,
-                   render_1x: Callable[[object], np.ndarray], device: str) -> bytes:
-    """``blob`` with an ``rESD`` chunk of at most ``n_bytes`` (framing included) holding what its field, rendered at
-    the input's size by ``render_1x``, leaves of ``pixels`` (H, W, C); ``report``'s sizes and PSNR updated to the
-    new file (``blob`` unchanged when the field leaves nothing). Raises ResidualBytesError (an InputError) when
+def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, base: np.ndarray, n_bytes: int,
+                   scale: QualityScale, render_1x: Callable[[object], np.ndarray], device: str) -> bytes:
+    """``blob`` with an ``rESD`` chunk of at most ``n_bytes`` (framing included) holding what its field, ``base``
+    (H, W, C: ``blob`` decoded and rendered at the input's size by ``render_1x``), leaves of ``pixels`` (H, W, C);
+    ``report``'s sizes and PSNR updated to the new file, rendered again (``blob`` unchanged when the field leaves
+    nothing). Raises ResidualBytesError (an InputError) when
     ``n_bytes`` is too small for the residual's smallest stream, or for one that lowers the error."""
     from .field.residual import tone_map
     from .io.container import with_residual
     from .io.residual import encode_residual
 
     clock = time.perf_counter()
-    base = render_1x(loads(blob, device=device, validate_mesh=False)).astype(np.float64)
+    base = base.astype(np.float64)
     space = tone_map if scale.tonemap else (lambda v: v)  # HDR light: where its PSNR is measured
     try:  # 12 framing bytes, up to 3 of padding
         payload = encode_residual(space(pixels.astype(np.float64)) - space(base), n_bytes - 15,

@@ -273,10 +273,11 @@ def _largest_fitting(size_of: Callable[[float], int], knob: _Knob, n_bytes: int)
 
 
 def _with_gain(codec: str, pixels: np.ndarray, config: dict, q, n_bytes: int, scale: QualityScale,
-               next_bytes: int) -> list[dict]:
+               next_bytes: int, value_range: tuple[float, float]) -> list[dict]:
     """The stream of quality ``q`` (the step above the highest that fits) with its samples spanning the largest
     share ``gain`` of the code range that fits ``n_bytes`` (``GAIN_MIN`` … 1, ``GAIN_STEPS`` halvings), as a
-    candidate of ``encode_to_budget``; none when not even ``GAIN_MIN`` fits."""
+    candidate of ``encode_to_budget`` (``value_range``: the pixels' min and max); none when not even ``GAIN_MIN``
+    fits."""
     lo, hi, best = GAIN_MIN, 1.0, None
     for _ in range(GAIN_STEPS):
         gain = 0.5 * (lo + hi)
@@ -289,7 +290,7 @@ def _with_gain(codec: str, pixels: np.ndarray, config: dict, q, n_bytes: int, sc
     if best is None:
         return []
     trial, stream = best
-    decoded = decode(codec, stream, trial, pixels.shape[2], (float(pixels.min()), float(pixels.max())))
+    decoded = decode(codec, stream, trial, pixels.shape[2], value_range)
     return [{"config": {**trial, **quality_parameters(codec, q)}, "bytes": stream_bytes(stream, trial),
              "score": scale.psnr(pixels, decoded), "decoded": decoded, "next_bytes": next_bytes}]
 
@@ -325,7 +326,7 @@ def encode_to_budget(codec: str, pixels: np.ndarray, n_bytes: int, scale: Qualit
                       "score": scale.psnr(pixels, decoded), "decoded": decoded,
                       "next_bytes": None if q_next is None else cost(q_next)})
         if knob is not None and knob.integer and q_next is not None and cost(q) < GAIN_FILL * n_bytes:
-            found.extend(_with_gain(codec, pixels, config, q_next, n_bytes, scale, cost(q_next)))
+            found.extend(_with_gain(codec, pixels, config, q_next, n_bytes, scale, cost(q_next), value_range))
     if not found:
         raise InputError(f"a budget of {n_bytes} bytes is too small for {codec}: its smallest stream of this image "
                          f"takes {int(smallest)} bytes")

@@ -56,13 +56,16 @@ def _images(samples: np.ndarray) -> list[np.ndarray]:
     return [np.ascontiguousarray(padded[..., k:k + 3]) for k in range(0, padded.shape[2], 3)]
 
 
-def _pack(values: np.ndarray, lo: float, hi: float, space: int, level: int) -> bytes:
-    """The payload of ``values`` (H, W, C) float64 as samples between ``lo`` and ``hi`` (float32 values) at AVIF
-    quality ``level``."""
-    ic = _codecs()
-    h, w, c = values.shape
+def _samples(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """(H, W, C) uint16 samples of ``values`` (float64) between ``lo`` and ``hi`` (float32 values)."""
     top = (1 << RESIDUAL_BITS) - 1
-    samples = np.round((values - lo) / (hi - lo) * top).clip(0, top).astype(np.uint16)
+    return np.round((values - lo) / (hi - lo) * top).clip(0, top).astype(np.uint16)
+
+
+def _pack(samples: np.ndarray, lo: float, hi: float, space: int, level: int) -> bytes:
+    """The payload of ``samples`` (H, W, C, ``_samples``) between ``lo`` and ``hi`` at AVIF quality ``level``."""
+    ic = _codecs()
+    h, w, c = samples.shape
     streams = [bytes(ic.avif_encode(p, level=level, speed=AVIF_SPEED, bitspersample=RESIDUAL_BITS,
                                     pixelformat="444", matrix=AVIF_MATRIX)) for p in _images(samples)]
     head = _HEAD.pack(_VERSION, _AVIF, RESIDUAL_BITS, c, space, w, h, lo, hi)
@@ -83,11 +86,12 @@ def encode_residual(values: np.ndarray, n_bytes: int, space: str = "values") -> 
         return None
     lo32, hi32 = float(np.float32(lo)), float(np.float32(hi))
     wide = values.astype(np.float64)
+    samples = _samples(wide, lo32, hi32)
     payloads: dict[int, bytes] = {}
 
     def size(level: int) -> int:
         if level not in payloads:
-            payloads[level] = _pack(wide, lo32, hi32, SPACES.index(space), level)
+            payloads[level] = _pack(samples, lo32, hi32, SPACES.index(space), level)
         return len(payloads[level])
 
     if size(0) > n_bytes:
@@ -102,7 +106,8 @@ def encode_residual(values: np.ndarray, n_bytes: int, space: str = "values") -> 
         gain_lo, gain_hi = GAIN_MIN, 1.0  # the largest share of the code range the next quality fits in
         for _ in range(GAIN_STEPS):
             gain = 0.5 * (gain_lo + gain_hi)
-            payload = _pack(wide, lo32, float(np.float32(lo32 + (hi32 - lo32) / gain)), SPACES.index(space), hi_q)
+            raised = float(np.float32(lo32 + (hi32 - lo32) / gain))
+            payload = _pack(_samples(wide, lo32, raised), lo32, raised, SPACES.index(space), hi_q)
             if len(payload) <= n_bytes:
                 gain_lo, candidates[1:] = gain, [payload]
             else:
