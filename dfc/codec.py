@@ -29,7 +29,7 @@ from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, decoder_hidden, features_at, image_mesh_size, mesh_size_set,
+                   SHORT_FIT_HIDDEN, decoder_hidden, features_at, field_bytes, image_mesh_size, mesh_size_set,
                    residual_choices, sample_mesh_size, size_at, sized_mesh)
 from .render import values_at
 from .settings import EncodeSettings
@@ -84,7 +84,9 @@ class EncodeReport:
     else None. ``feature_bits``: the bits the features were stored with; ``fallback_from``: the bits whose smallest
     mesh a byte target could not hold when the encoder fell back to fewer (``dfc.rate.FEATURE_BITS_FALLBACK``), else
     None. ``pixel_filter``: the filter an image read whole was fitted and stored with, and ``pixel_evidence`` why
-    ``auto`` chose it (``Detection.evidence``)."""
+    ``auto`` chose it (``Detection.evidence``). ``pruned_curves``: when a byte target too small for every curve
+    given made the encoder prune them (``encode_image(..., prune_to_fit=True)``), ``Pruned.to_dict`` of that, else
+    None."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -104,6 +106,7 @@ class EncodeReport:
     pixel_filter: str | None = None
     pixel_evidence: str | None = None
     units: str = ""
+    pruned_curves: dict | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -223,6 +226,38 @@ def _residual_auto(encode):
     return resolved
 
 
+def _pruned_to_fit(encode):
+    """``encode_image`` that, with ``prune_to_fit=True``, meets a byte target too small for every curve given
+    (``TargetBytesError`` after every residual share and feature depth was tried) by leaving out the curves that earn
+    the least per byte (``dfc.geometry.sources.prune.prune_curves`` for what the target leaves the field,
+    ``dfc.rate.field_bytes``) and encoding again; the report's ``pruned_curves`` says how many were left out. The
+    error stands without it, and when pruning would keep every curve."""
+
+    @functools.wraps(encode)
+    def resolved(image, curves: Curves, settings: EncodeSettings | None = None, *, prune_to_fit: bool = False,
+                 **kw):
+        settings = settings or EncodeSettings()
+        try:
+            return encode(image, curves, settings, **kw)
+        except TargetBytesError:
+            if not prune_to_fit:
+                raise
+            from .geometry.sources.prune import prune_curves
+            from .io.image import check_pixels
+
+            pixels = check_pixels(image)
+            pruned = prune_curves(pixels, curves, n_triangles=settings.max_triangles,
+                                  target_bytes=field_bytes(pixels, settings.target_bytes, settings.residual_bytes))
+            if pruned.kept.all():
+                raise
+        blob, report = encode(image, replace(pruned.curves, source=curves.source), settings, **kw)
+        report.pruned_curves = pruned.to_dict()
+        return blob, report
+
+    return resolved
+
+
+@_pruned_to_fit
 @_residual_auto
 @_feature_bits
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
@@ -247,6 +282,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     residual : the bytes of the residual raster (``rESD``) as ``settings.residual_bytes`` "auto" resolved them
         (``_residual_auto``); None: ``settings.residual_bytes``, an integer. A byte target is shared: the field gets
         the target less these bytes.
+    prune_to_fit : a byte target too small for every curve leaves out those that earn the least
+        (``_pruned_to_fit``; ``report.pruned_curves``) instead of raising ``TargetBytesError``
 
     The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
     is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).

@@ -108,7 +108,9 @@ class BenchSettings:
     default_encode : dfc is encoded as ``dfc encode`` does by default (its own steps and batch size;
         ``steps`` and ``batch_size`` then apply to the neural baselines only)
     prune_curves : curves found in the image (``Curves.source`` "auto") are pruned for each budget before dfc's
-        encode, as ``dfc encode --curves auto`` does (``dfc.geometry.sources.prune``)
+        encode, as ``dfc encode --curves auto`` does (``dfc.geometry.sources.prune``); given curves, only for a
+        budget too small for all of them, as ``dfc encode`` does with a curves file (``dfc.codec.encode_image``'s
+        ``prune_to_fit``)
     refine_curves : such curves are then refined against the pixels, as ``dfc encode --curves auto`` does
         (``dfc.geometry.sources.refine``; both by ``dfc.geometry.sources.auto.ready_curves``)
     pixel_filter : the filter dfc's encode and refinement assume (``dfc encode --pixel-filter``); the benchmarks set
@@ -258,13 +260,18 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
             if done is not None:
                 why = getattr(done, "warning", None)
                 progress(f"dfc: curves {what}: {done.summary()}" + (f" ({why})" if why else ""))
-    blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback)
+    blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback,
+                                prune_to_fit=settings.prune_curves and curves.source != "auto")
+    if report.pruned_curves:
+        progress(f"dfc: curves pruned to fit the budget: {report.pruned_curves['dropped']} of "
+                 f"{report.pruned_curves['curves']} left out")
     model = loads(blob, device=settings.device)
     details = {"config": {"triangles": report.n_triangles, "vertices": report.n_vertices, "features": report.n_features,
                           "dim": enc.dim, "feature_bits": report.feature_bits, "mesh_bits": enc.mesh_bits,
                           "steps": steps},
                "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds,
                **({"pruned_curves": pruned.to_dict()} if pruned is not None else {}),
+               **({"pruned_curves": report.pruned_curves} if report.pruned_curves else {}),
                **({"refined_curves": refined.to_dict()} if refined is not None else {})}
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h)), (w, h)), len(blob), {"blob": blob, **details}
 

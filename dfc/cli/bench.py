@@ -79,7 +79,8 @@ def _budgets(ctx, param, value):
               help="--corpus: cases run at once, each in a process of its own on one thread.")
 @click.option("--prune-curves/--no-prune-curves", "prune_curves", default=True, show_default=True,
               help="--corpus: prune the curves of the --curves auto cases for each budget, as dfc encode --curves auto "
-                   "does (dfc.geometry.sources.prune).")
+                   "does, and the other cases' curves where a budget is too small for all of them, as dfc encode "
+                   "does with a curves file (dfc.geometry.sources.prune).")
 @click.option("--refine-curves/--no-refine-curves", "refine_curves", default=True, show_default=True,
               help="--corpus: refine the curves of the --curves auto cases against the pixels for each budget, after "
                    "pruning, as dfc encode --curves auto does (dfc.geometry.sources.refine).")

@@ -142,7 +142,8 @@ def _curves_arg(ctx, param, value):
               help="Image read whole: before the mesh is built, drop the curves that do not earn their bytes (the "
                    "squared error a curve removes against a continuous field across it, per byte of the mesh it "
                    "forces; fewer under a smaller --target-bytes; dfc.geometry.sources.prune)  [default: on with "
-                   "--curves auto, off with a curves file].")
+                   "--curves auto; with a curves file, on only when --target-bytes is too small for all of them]. "
+                   "--no-prune-curves refuses such a target.")
 @click.option("--device", default=FitSettings.device, show_default=True,
               help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
@@ -285,7 +286,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
         else:
             reference = _read_reference(reference_path, curves.domain) if reference_path else None
             blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
-                                             reference, curves_info, quiet)
+                                             reference, curves_info, quiet,
+                                             prune_to_fit=prune_curves is None and curves_path != "auto")
     if worked:  # the time line counts finding, pruning and refining the curves too
         report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
     if detection is not None:  # the filter was detected along every curve found, before pruning
@@ -316,8 +318,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
 
         write_json(json_path, {"output": output if output == "-" else str(Path(output)), "input_bytes": input_bytes,
                                **({"curves": curves_info} if curves_info else {}),
-                               **({"refined_curves": refined.to_dict()} if refined else {}),
-                               **({"pruned_curves": pruned.to_dict()} if pruned else {}), **asdict(report)})
+                               **({"refined_curves": refined.to_dict()} if refined else {}), **asdict(report),
+                               **({"pruned_curves": pruned.to_dict()} if pruned else {})})
 
 
 def encode_settings(options: dict):
@@ -382,6 +384,10 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
                      "--preview P.png)")
     if pruned is not None:
         lines.append(f"curves pruned: {pruned.summary()}")
+    if report.pruned_curves:
+        cut = report.pruned_curves
+        lines.append(f"curves pruned: {cut['dropped']} of {cut['curves']} curves left out, those earning the least per "
+                     "byte: the byte target is too small for all of them (--no-prune-curves refuses it instead)")
     if refined is not None:
         lines.append(f"curves refined against the pixels: {refined.summary()}")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
@@ -424,8 +430,9 @@ def _fit_callback(bar):
 
 
 def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
-                      quiet):
-    """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution."""
+                      quiet, prune_to_fit: bool = False):
+    """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution (an image's curves
+    pruned when the byte target is too small for all of them and ``prune_to_fit``, ``dfc.codec.encode_image``)."""
     from ..codec import (encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds,
                          refit_steps)
 
@@ -442,7 +449,7 @@ def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_s
         if kind == "frames":
             return encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
         return encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback,
-                            curves_info=curves_info)
+                            curves_info=curves_info, prune_to_fit=prune_to_fit)
 
 
 def _gpus() -> int:

@@ -131,18 +131,18 @@ def test_neural_baselines_train_at_least_as_long_as_dfc(tmp_path):
 @pytest.mark.slow
 def test_rd_sweep_writes_curves_plots_and_every_budget(tmp_path):
     out = tmp_path / "rd"
-    budgets = [1000, 3000]
-    result = CliRunner().invoke(cli, ["bench", "--scene", "shapes", "--rd", "--budgets", "3000,1000", "--methods",
+    budgets = [500, 3000]
+    result = CliRunner().invoke(cli, ["bench", "--scene", "shapes", "--rd", "--budgets", "3000,500", "--methods",
                                       "dfc,relu,raster,jpegxl,jpeg2k", "--zoom", "1", "--zoom", "33", *TINY, "-o",
                                       str(out)])
     assert result.exit_code == 0, result.output
     res = json.loads((out / "results.json").read_text())
     assert res["rd"] is True and res["budgets"] == budgets and len(res["runs"]) == 2
     assert set(res["curves"]) == {"dfc", "relu", "raster", "jpegxl", "jpeg2k"}
-    small, large = res["curves"]["dfc"]  # dfc's smallest file is larger than 1000 B: recorded, not fatal
+    small, large = res["curves"]["dfc"]  # dfc's smallest file, without curves, is larger than 500 B: recorded
     assert "too small" in small["failed"] and large["bytes"] <= 3000 and large["image_psnr"]["all"] > 0
-    for record, budget in zip(res["runs"], [1000, large["bytes"]]):  # the others get dfc's size where it has one
-        assert record["budget_bytes"] == budget and ("dfc" in record["failed"]) == (budget == 1000)
+    for record, budget in zip(res["runs"], [500, large["bytes"]]):  # the others get dfc's size where it has one
+        assert record["budget_bytes"] == budget and ("dfc" in record["failed"]) == (budget == 500)
         _check_budget(record["methods"], budget)
     for m in ("relu", "raster", "jpegxl", "jpeg2k"):
         points = res["curves"][m]
@@ -151,11 +151,11 @@ def test_rd_sweep_writes_curves_plots_and_every_budget(tmp_path):
                    for p in points)
         assert set(points[0]["psnr_by_kind"]) == {"edge", "junction", "smooth"}
     assert res["curves"]["jpegxl"][1]["image_psnr"]["all"] > res["curves"]["jpegxl"][0]["image_psnr"]["all"]
-    for name in ("rd.png", "rd_probes.png", "budget_1000/results.json", "budget_3000/contact.png"):
+    for name in ("rd.png", "rd_probes.png", "budget_500/results.json", "budget_3000/contact.png"):
         assert (out / name).stat().st_size > 0, name
     assert PILImage.open(out / "rd.png").size[0] > 400
     table = (out / "results.md").read_text()
-    assert "| JPEG XL |" in table and "3000 B" in table and "dfc at 1000 B" in table
+    assert "| JPEG XL |" in table and "3000 B" in table and "dfc at 500 B" in table
 
 
 def test_bench_on_a_user_image_measures_zoom_one_only(tmp_path):
@@ -261,6 +261,23 @@ def test_hdr_input_is_measured_tone_mapped_and_the_baselines_fit_dfcs_loss():
                 ref, test = result.tiles["reference"][p][z], result.tiles[m][p][z]
                 assert value == pytest.approx(tone.psnr(ref, test))
     assert "tone-mapped x/(1+x), data range 1" in markdown_table(res)
+
+
+def test_a_budget_too_small_for_the_scenes_curves_prunes_them_as_dfc_encode_does():
+    """dfc's point under a budget below the smallest file with every curve of a scene: its curves pruned to fit
+    (recorded with the point), as ``dfc encode`` does with a curves file; without pruning the point fails."""
+    from dfc.bench.compare import BenchSettings, run_bench, scene_inputs
+    from dfc.bench.scenes import get_scene
+
+    results = {}
+    for prune in (True, False):
+        settings = BenchSettings(steps=4, batch_size=256, size=48, render=12, spp=1, sweep=False, match_time=False,
+                                 pixel_grid=1, methods=("dfc",), target_bytes=900, zooms=(1,), keep_going=True,
+                                 prune_curves=prune, residual_share=0)
+        results[prune] = run_bench(**scene_inputs(get_scene("shapes"), settings), settings=settings).results
+    pruned = results[True]["methods"]["dfc"]
+    assert pruned["bytes"] <= 900 and 0 < pruned["pruned_curves"]["dropped"] < pruned["pruned_curves"]["curves"]
+    assert "dfc" not in results[False]["methods"] and "too small for these curves" in results[False]["failed"]["dfc"]
 
 
 @pytest.mark.slow

@@ -256,14 +256,53 @@ def test_encode_with_auto_curves_prunes_them_by_default(disc_exr, tmp_path, caps
     from dfc.cli.stats import file_stats
 
     out = tmp_path / "disc.dfield"
+    summary = tmp_path / "summary.json"
     args = ["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "2", "--batch-size", "256",
-            "--no-refine-curves"]
+            "--no-refine-curves", "--json", summary]
     code, stdout, err = run(args, capsys)
     assert code == 0, err
     assert "curves pruned: 0 of 1 curves dropped" in stdout
     assert file_stats(out)["encoder"]["curves"]["pruned"]["dropped"] == 0
+    assert json.loads(summary.read_text())["pruned_curves"]["curves"] == 1
     code, stdout, err = run([*args, "--no-prune-curves"], capsys)
     assert code == 0 and "pruned" not in stdout and "pruned" not in file_stats(out)["encoder"]["curves"]
+    assert json.loads(summary.read_text())["pruned_curves"] is None
+
+
+def test_encode_prunes_a_curves_file_only_when_the_target_is_too_small_for_it(tmp_path, capsys):
+    """Eleven steps and their lines, whose smallest file is over 2000 bytes: under a 2000-byte target the curves
+    file is pruned by default (the summary and ``--json`` say so) and the file fits; ``--no-prune-curves`` keeps every
+    curve and the target is refused; without a target, or under one that the curves fit, nothing is pruned."""
+    from dfc.cli.stats import file_stats
+    from dfc.geometry.curves import Curves, elevate
+    from dfc.geometry.sources import write_json
+
+    h, w, xs = 48, 64, [5 + 5 * k for k in range(11)]
+    x = np.mgrid[0:h, 0:w][1] + 0.5
+    pixels = 0.1 + sum(0.07 * np.clip(x - (c - 0.5), 0.0, 1.0) for c in xs)
+    write_exr(tmp_path / "s.exr", np.repeat(pixels[..., None], 3, axis=-1).astype(np.float32), ["R", "G", "B"],
+              half=False)
+    cp = np.stack([elevate(np.array([[c, 0.0], [c, float(h)]])[None], 1)[0] for c in xs])
+    write_json(Curves((0.0, 0.0, float(w), float(h)), cp, [1] * len(xs), np.arange(len(xs)), [[0.0, 1.0]] * len(xs),
+                      [f"s{k}" for k in range(len(xs))], [None] * len(xs)), tmp_path / "s.json")
+    out = tmp_path / "s.dfield"
+    args = ["encode", tmp_path / "s.exr", "--curves", tmp_path / "s.json", "-o", out, "--steps", "2",
+            "--batch-size", "256", "--residual-bytes", "0"]
+    code, stdout, err = run([*args, "--target-bytes", "2000", "--json", tmp_path / "s.json.out"], capsys)
+    assert code == 0, err
+    dropped = int(re.search(r"curves pruned: (\d+) of 11 curves left out", stdout).group(1))
+    assert 0 < dropped < 11 and "too small for all of them" in stdout
+    assert json.loads((tmp_path / "s.json.out").read_text())["pruned_curves"]["dropped"] == dropped
+    assert out.stat().st_size <= 2000
+    kept_vertices = file_stats(out)["mesh"]["discontinuous_vertices"]
+    out.unlink()
+    code, _, err = run([*args, "--target-bytes", "2000", "--no-prune-curves"], capsys)
+    assert_one_line_error(code, err, "too small for these curves")
+    assert not out.exists()
+    for more in ([], ["--target-bytes", "3000"]):
+        code, stdout, err = run([*args, *more], capsys)
+        assert code == 0 and "pruned" not in stdout, err
+        assert file_stats(out)["mesh"]["discontinuous_vertices"] > kept_vertices
 
 
 @pytest.mark.parametrize("case", ["zero_target", "target_alone", "samples"])
