@@ -231,7 +231,8 @@ def _pruned_to_fit(encode):
     (``TargetBytesError`` after every residual share and feature depth was tried) by leaving out the curves that earn
     the least per byte (``dfc.geometry.sources.prune.prune_curves`` for what the target leaves the field,
     ``dfc.rate.field_bytes``) and encoding again; the report's ``pruned_curves`` says how many were left out. The
-    error stands without it, and when pruning would keep every curve."""
+    error stands without it, and when pruning would keep every curve; when the pruned curves do not fit either, its
+    message says how many were left out."""
 
     @functools.wraps(encode)
     def resolved(image, curves: Curves, settings: EncodeSettings | None = None, *, prune_to_fit: bool = False,
@@ -250,7 +251,11 @@ def _pruned_to_fit(encode):
                                   target_bytes=field_bytes(pixels, settings.target_bytes, settings.residual_bytes))
             if pruned.kept.all():
                 raise
-        blob, report = encode(image, replace(pruned.curves, source=curves.source), settings, **kw)
+        try:
+            blob, report = encode(image, replace(pruned.curves, source=curves.source), settings, **kw)
+        except TargetBytesError as e:
+            raise TargetBytesError(f"{e} (with {int((~pruned.kept).sum())} of {len(pruned.kept)} curves left out)") \
+                from None
         report.pruned_curves = pruned.to_dict()
         return blob, report
 

@@ -272,7 +272,8 @@ def test_encode_with_auto_curves_prunes_them_by_default(disc_exr, tmp_path, caps
 def test_encode_prunes_a_curves_file_only_when_the_target_is_too_small_for_it(tmp_path, capsys):
     """Eleven steps and their lines, whose smallest file is over 2000 bytes: under a 2000-byte target the curves
     file is pruned by default (the summary and ``--json`` say so) and the file fits; ``--no-prune-curves`` keeps every
-    curve and the target is refused; without a target, or under one that the curves fit, nothing is pruned."""
+    curve and the target is refused; a target below any file is refused saying what was left out; without a target,
+    or under one that the curves fit, nothing is pruned."""
     from dfc.cli.stats import file_stats
     from dfc.geometry.curves import Curves, elevate
     from dfc.geometry.sources import write_json
@@ -298,6 +299,9 @@ def test_encode_prunes_a_curves_file_only_when_the_target_is_too_small_for_it(tm
     out.unlink()
     code, _, err = run([*args, "--target-bytes", "2000", "--no-prune-curves"], capsys)
     assert_one_line_error(code, err, "too small for these curves")
+    assert not out.exists()
+    code, _, err = run([*args, "--target-bytes", "500"], capsys)  # below the smallest file, whatever is left out
+    assert_one_line_error(code, err, "of 11 curves left out")
     assert not out.exists()
     for more in ([], ["--target-bytes", "3000"]):
         code, stdout, err = run([*args, *more], capsys)
