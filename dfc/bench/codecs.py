@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..io.residual import GAIN_FILL, largest_gain
 from ..metrics import QualityScale
 
 __all__ = ["AVIF_SPEED", "CODECS", "Coded", "JXL_EFFORT", "SDR_ONLY", "SIDE_BYTES", "configurations", "decode",
@@ -48,11 +49,6 @@ JXL_EFFORT = 7
 AVIF_SPEED = 2
 """libavif's speed (0 slowest … 10): about as good as its slowest setting on the README sample, twice as fast
 (CHANGELOG.md, "Benchmark settings")."""
-GAIN_FILL = 0.97
-"""An integer knob's stream that leaves more than 3 % of the budget is also tried one step up with its samples
-spanning a share (the *gain*) of the code range (``_with_gain``), as ``dfc.io.residual`` codes its residual."""
-GAIN_MIN, GAIN_STEPS = 0.5, 6
-"""The gains tried: between this and 1, in this many halvings."""
 BISECTION_STEPS = 14
 """Bisection steps of a continuous quality knob."""
 LOG_EPS = 1e-4
@@ -275,18 +271,15 @@ def _largest_fitting(size_of: Callable[[float], int], knob: _Knob, n_bytes: int)
 def _with_gain(codec: str, pixels: np.ndarray, config: dict, q, n_bytes: int, scale: QualityScale,
                next_bytes: int, value_range: tuple[float, float]) -> list[dict]:
     """The stream of quality ``q`` (the step above the highest that fits) with its samples spanning the largest
-    share ``gain`` of the code range that fits ``n_bytes`` (``GAIN_MIN`` … 1, ``GAIN_STEPS`` halvings), as a
-    candidate of ``encode_to_budget`` (``value_range``: the pixels' min and max); none when not even ``GAIN_MIN``
-    fits."""
-    lo, hi, best = GAIN_MIN, 1.0, None
-    for _ in range(GAIN_STEPS):
-        gain = 0.5 * (lo + hi)
+    share ``gain`` of the code range that fits ``n_bytes`` (``dfc.io.residual.largest_gain``, as the residual raster
+    is filled), as a candidate of ``encode_to_budget`` (``value_range``: the pixels' min and max); none when not
+    even the smallest gain fits."""
+    def coded(gain):
         trial = {**config, "gain": gain}
         stream = encode(codec, pixels, trial, q)
-        if stream_bytes(stream, trial) <= n_bytes:
-            lo, best = gain, (trial, stream)
-        else:
-            hi = gain
+        return stream_bytes(stream, trial), (trial, stream)
+
+    best = largest_gain(coded, n_bytes)
     if best is None:
         return []
     trial, stream = best

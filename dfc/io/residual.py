@@ -11,13 +11,17 @@ grey images). A sample s decodes to ``lo + (hi − lo) · s / (2^bits − 1)``.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
+from typing import TypeVar
 
 import numpy as np
 
 from ..errors import FormatError, InputError, ResidualBytesError
 
-__all__ = ["AVIF_MATRIX", "RESIDUAL_BITS", "SPACES", "decode_residual", "encode_residual", "payload_head",
-           "payload_streams"]
+__all__ = ["AVIF_MATRIX", "GAIN_FILL", "GAIN_MIN", "GAIN_STEPS", "RESIDUAL_BITS", "SPACES", "decode_residual",
+           "encode_residual", "largest_gain", "payload_head", "payload_streams"]
+
+T = TypeVar("T")
 
 RESIDUAL_BITS = 12
 """Bits per coded sample."""
@@ -103,20 +107,33 @@ def encode_residual(values: np.ndarray, n_bytes: int, space: str = "values") -> 
         lo_q, hi_q = (mid, hi_q) if size(mid) <= n_bytes else (lo_q, mid)
     candidates = [payloads[lo_q]]
     if hi_q is not None and len(candidates[0]) < GAIN_FILL * n_bytes:
-        gain_lo, gain_hi = GAIN_MIN, 1.0  # the largest share of the code range the next quality fits in
-        for _ in range(GAIN_STEPS):
-            gain = 0.5 * (gain_lo + gain_hi)
-            raised = float(np.float32(lo32 + (hi32 - lo32) / gain))
-            payload = _pack(_samples(wide, lo32, raised), lo32, raised, SPACES.index(space), hi_q)
-            if len(payload) <= n_bytes:
-                gain_lo, candidates[1:] = gain, [payload]
-            else:
-                gain_hi = gain
+        def raised(gain):  # the next quality up, the samples spanning ``gain`` of the code range
+            top = float(np.float32(lo32 + (hi32 - lo32) / gain))
+            payload = _pack(_samples(wide, lo32, top), lo32, top, SPACES.index(space), hi_q)
+            return len(payload), payload
+
+        filled = largest_gain(raised, n_bytes)
+        candidates += [] if filled is None else [filled]
     errors = [float(np.square(decode_residual(p).astype(np.float64) - wide).sum()) for p in candidates]
     if min(errors) >= float(np.square(wide).sum()):
         raise ResidualBytesError(f"a residual in {n_bytes} bytes adds more error than it removes (its best quality "
                                  "there codes it too coarsely)")
     return candidates[int(np.argmin(errors))]
+
+
+def largest_gain(coded: Callable[[float], tuple[int, T]], n_bytes: int) -> T | None:
+    """What ``coded(gain) -> (bytes, result)`` gives for the largest gain in [``GAIN_MIN``, 1) whose bytes fit
+    ``n_bytes``, found in ``GAIN_STEPS`` halvings; None when no gain tried fits. Shared with the benchmarks' AVIF
+    (``dfc.bench.codecs``), which fills its budget the same way."""
+    lo, hi, best = GAIN_MIN, 1.0, None
+    for _ in range(GAIN_STEPS):
+        gain = 0.5 * (lo + hi)
+        size, result = coded(gain)
+        if size <= n_bytes:
+            lo, best = gain, result
+        else:
+            hi = gain
+    return best
 
 
 def payload_head(data) -> dict:
