@@ -29,8 +29,9 @@ from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, decoder_hidden, features_at, field_bytes, image_mesh_size, mesh_size_set,
-                   residual_choices, sample_mesh_size, size_at, sized_mesh)
+                   SHORT_FIT_HIDDEN, build_mesh, decoder_hidden, features_at, field_bytes, image_mesh_size, is_clean,
+                   mesh_bytes, mesh_size_set, residual_choices, sample_mesh_size, size_at, sized_mesh,
+                   smallest_bytes)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -86,7 +87,8 @@ class EncodeReport:
     None. ``pixel_filter``: the filter an image read whole was fitted and stored with, and ``pixel_evidence`` why
     ``auto`` chose it (``Detection.evidence``). ``pruned_curves``: when a byte target too small for every curve
     given made the encoder prune them (``encode_image(..., prune_to_fit=True)``), ``Pruned.to_dict`` of that, else
-    None."""
+    None. ``default_target``: the byte target the encoder gave a clean image encoded without one, shared with a
+    residual raster (``_default_target``), else None."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -107,6 +109,7 @@ class EncodeReport:
     pixel_evidence: str | None = None
     units: str = ""
     pruned_curves: dict | None = None
+    default_target: int | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -205,7 +208,10 @@ def _residual_auto(encode):
     handed over as ``residual``: while the field cannot fit what a choice leaves of the target
     (``TargetBytesError``) the next is tried; when none fits, or the residual cannot use its share
     (``ResidualBytesError``: its smallest stream is larger, or its best would add error), the image is encoded
-    again without one. Bytes given in ``settings`` are kept as given."""
+    again without one. Without a byte target, a clean image gets ``_default_target`` and the field shares it with a
+    residual the same way, without a fill round (``settings.refine`` 0 unless given: the residual takes what the
+    field leaves instead; the report's ``default_target`` says so); when no choice fits, it is encoded without
+    target or residual. Bytes given in ``settings`` are kept as given."""
 
     @functools.wraps(encode)
     def resolved(image, curves: Curves, settings: EncodeSettings | None = None, **kw):
@@ -214,9 +220,17 @@ def _residual_auto(encode):
             return encode(image, curves, settings, **kw)
         from .io.image import check_pixels
 
-        for n in residual_choices(check_pixels(image), settings.target_bytes):
+        pixels = check_pixels(image)
+        default, choices = _default_target(pixels, getattr(image, "channels", None), curves, settings,
+                                           kw.get("fit_curves", False))
+        for n in choices if default else residual_choices(pixels, settings.target_bytes):
             try:
-                return encode(image, curves, settings, residual=n, **kw)
+                if default is None:
+                    return encode(image, curves, settings, residual=n, **kw)
+                own = replace(settings, target_bytes=default, refine=0 if settings.refine is None else settings.refine)
+                blob, report = encode(image, curves, own, residual=n, default_target=True, **kw)
+                report.default_target = default
+                return blob, report
             except TargetBytesError:
                 continue
             except ResidualBytesError:
@@ -224,6 +238,35 @@ def _residual_auto(encode):
         return encode(image, curves, settings, residual=0, **kw)
 
     return resolved
+
+
+def _default_target(pixels: np.ndarray, channels: list[str] | None, curves: Curves, settings: EncodeSettings,
+                    fit_curves: bool) -> tuple[int | None, list[int]]:
+    """(target, residual bytes to try) of an image ``pixels`` (H, W, C) encoded without a byte target, so that a
+    residual raster can share one (``_residual_auto``): the bytes of the mesh the encode would build by default
+    (``dfc.rate.image_mesh_size``) with incompressible features (``dfc.rate.mesh_bytes``), and those of its
+    ``residual_choices`` that leave the field at least the smallest file the curves allow
+    (``dfc.rate.smallest_bytes``). (None, []) for an image that is not clean (``dfc.rate.is_clean``), settings that
+    choose a size themselves (a mesh-size option or a PSNR target), or when no choice leaves the field enough."""
+    if settings.target_bytes is not None or settings.target_psnr is not None or mesh_size_set(settings) \
+            or not is_clean(pixels):
+        return None, []
+    from .io.samples import default_channels
+
+    h, w, c = pixels.shape
+    channels = channels or default_channels(c)
+    curves = check_domain(curves, w, h, fit_curves)
+    base = replace(settings, feature_bits=settings.feature_bits or DEFAULT_FEATURE_BITS)
+    sized, mesh = image_mesh_size(curves, base, w * h)
+    sized = image_decoder(sized, pixels.size, c)
+    target = mesh_bytes(build_mesh(curves, sized) if mesh is None else mesh, sized, channels)
+
+    def room(n: int) -> bool:  # the field's share holds the curves' smallest file, with the decoder it would get
+        field = image_decoder(replace(base, target_bytes=target - n), pixels.size, c)
+        return target - n >= smallest_bytes(curves, replace(field, target_bytes=None), channels)
+
+    choices = [n for n in residual_choices(pixels, target) if room(n)]
+    return (target, choices) if choices else (None, [])
 
 
 def _pruned_to_fit(encode):
@@ -267,7 +310,7 @@ def _pruned_to_fit(encode):
 @_feature_bits
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
                  fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None,
-                 chosen_bits: bool = False, residual: int | None = None):
+                 chosen_bits: bool = False, residual: int | None = None, default_target: bool = False):
     """Encode a raster with its discontinuity curves.
 
     Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
@@ -287,6 +330,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     residual : the bytes of the residual raster (``rESD``) as ``settings.residual_bytes`` "auto" resolved them
         (``_residual_auto``); None: ``settings.residual_bytes``, an integer. A byte target is shared: the field gets
         the target less these bytes.
+    default_target : ``settings.target_bytes`` is the encoder's own (``_default_target``), recorded as such in the
+        header's ``encoder`` record; the residual then also gets what the field leaves of its share
     prune_to_fit : a byte target too small for every curve leaves out those that earn the least
         (``_pruned_to_fit``; ``report.pruned_curves``) instead of raising ``TargetBytesError``
 
@@ -318,7 +363,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
         if n_residual >= settings.target_bytes:
             raise InputError(f"--residual-bytes {n_residual} leaves nothing of --target-bytes "
                              f"{settings.target_bytes} for the field")
-        asked = {"target_bytes": settings.target_bytes}
+        asked = {"target_bytes": settings.target_bytes, **({"default_target": True} if default_target else {})}
         settings = replace(settings, target_bytes=settings.target_bytes - n_residual)
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
@@ -362,6 +407,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     blob, report = _finish(model, settings, info, seconds, w * h, truth, scale,
                            pixel_size=(1.0, 1.0), value_map=value_map, units=units, pixel_filter=stored)
     if n_residual:
+        if default_target:  # no fill round: the residual takes what the field left of its share too
+            n_residual += max(0, settings.target_bytes - len(blob))
         blob = _with_residual(blob, report, pixels, rendered[0], n_residual, scale,
                               lambda m: render(m, w, h, pixel_filter=pixel_filter), settings.device)
     report.pixel_filter = stored

@@ -23,9 +23,9 @@ from .geometry.triangulate import DEFAULT_TRIANGLES, halving_points, triangulate
 __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BITS_FALLBACK", "FILL",
            "FILL_CARRY_POINTS", "FILL_RETRIES", "HALVING_COST", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
            "REFINE_SHARE", "RESIDUAL_FIELD_BPP", "RESIDUAL_MIN_BYTES", "RESIDUAL_NOISE", "RESIDUAL_SHARE",
-           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "field_bytes",
-           "decoder_hidden", "features_at", "fill_points", "image_mesh_size", "mesh_for_bytes", "mesh_size_set",
-           "refinement_points", "residual_choices", "sample_mesh_size", "size_at", "sized_mesh"]
+           "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "features_at", "field_bytes",
+           "fill_points", "image_mesh_size", "is_clean", "mesh_bytes", "mesh_for_bytes", "mesh_size_set",
+           "refinement_points", "residual_choices", "sample_mesh_size", "size_at", "sized_mesh", "smallest_bytes"]
 
 TARGET_BYTES_PROBES = 12
 """Triangulations tried at most when sizing the mesh to a byte target."""
@@ -214,13 +214,19 @@ def sized_mesh(curves: Curves, settings, channels: list[str], size_of=None) -> t
 
 
 def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int, size_of) -> tuple[int, Mesh]:
-    """Bytes of a file on a mesh of at most ``n_triangles`` (and that mesh): a fitted bank is at most about as
-    incompressible as a random one at the same bit depth. ``size_of(model) -> bytes`` writes the file (None: with
-    an empty header ``encoder`` record)."""
+    """Bytes of a file on a mesh of at most ``n_triangles`` (``mesh_bytes``) and that mesh."""
+    mesh = build_mesh(curves, replace(settings, max_triangles=n_triangles, max_area=None, edge_length=None))
+    return mesh_bytes(mesh, settings, channels, size_of), mesh
+
+
+def mesh_bytes(mesh: Mesh, settings, channels: list[str], size_of=None) -> int:
+    """Bytes of a file on ``mesh`` with incompressible features: a bank uniform in ±1 stored with
+    ``settings.feature_bits`` (a fitted bank is at most about as incompressible as a random one at the same bit
+    depth) and a decoder of ``settings.hidden`` × ``settings.layers``. ``size_of(model) -> bytes`` writes the file
+    (None: with an empty header ``encoder`` record)."""
     from .field.feature_field import FeatureField
     from .field.model import FieldModel
 
-    mesh = build_mesh(curves, replace(settings, max_triangles=n_triangles, max_area=None, edge_length=None))
     model = FieldModel(FeatureField(mesh, dim=settings.dim, seed=settings.seed), channels, hidden=settings.hidden,
                        layers=settings.layers)
     with torch.no_grad():
@@ -228,8 +234,16 @@ def _file_bytes(curves: Curves, settings, channels: list[str], n_triangles: int,
     if size_of is None:
         from .io.dfield import encode_model
 
-        return len(encode_model(model, settings)[0]), mesh
-    return size_of(model), mesh
+        return len(encode_model(model, settings)[0])
+    return size_of(model)
+
+
+def smallest_bytes(curves: Curves, settings, channels: list[str]) -> int:
+    """Bytes of the smallest file a byte target could get for ``curves`` (``mesh_for_bytes`` with every feature depth
+    of ``FEATURE_BITS_FALLBACK``): the mesh the curves force, with incompressible features (``mesh_bytes``) of
+    ``FEATURE_BITS_FALLBACK[-1]`` bits; ``settings`` must set no mesh size."""
+    sized, mesh = _counted_mesh(curves, settings, 2)
+    return mesh_bytes(mesh, replace(sized, feature_bits=FEATURE_BITS_FALLBACK[-1]), channels)
 
 
 def mesh_for_bytes(curves: Curves, settings, channels: list[str], size_of=None) -> Mesh:
@@ -351,15 +365,21 @@ def residual_choices(pixels: np.ndarray, target_bytes: int | None) -> list[int]:
     in order, while the field does not fit what they leave (``dfc.codec._residual_auto``): for a clean image
     (``dfc.metrics.noise_sigma`` below ``RESIDUAL_NOISE``) the bytes that leave the field ``RESIDUAL_FIELD_BPP``
     bits per pixel, when that is more than ``RESIDUAL_SHARE`` of the target, then that share; none under
-    ``RESIDUAL_MIN_BYTES``. Empty for a noisy image and without a target."""
-    from .metrics import noise_sigma
-
+    ``RESIDUAL_MIN_BYTES``. Empty for a noisy image (``is_clean``) and without a target."""
     if target_bytes is None:
         return []
     share = round(RESIDUAL_SHARE * target_bytes)
     capped = target_bytes - round(RESIDUAL_FIELD_BPP * pixels.shape[0] * pixels.shape[1] / 8)
     choices = [n for n in dict.fromkeys((max(share, capped), share)) if n >= RESIDUAL_MIN_BYTES]
-    return choices if choices and noise_sigma(pixels) < RESIDUAL_NOISE else []
+    return choices if choices and is_clean(pixels) else []
+
+
+def is_clean(pixels: np.ndarray) -> bool:
+    """Whether an image ``pixels`` (H, W, C) is clean enough for a residual raster: its ``dfc.metrics.noise_sigma``
+    is below ``RESIDUAL_NOISE``."""
+    from .metrics import noise_sigma
+
+    return noise_sigma(pixels) < RESIDUAL_NOISE
 
 
 def field_bytes(pixels: np.ndarray, target_bytes: int | None, residual_bytes: int | str) -> int | None:

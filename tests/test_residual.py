@@ -16,6 +16,7 @@ from dfc.codec import EncodeSettings, check_domain, encode_image, loads
 from dfc.errors import FormatError, InputError
 from dfc.field.residual import ResidualGrid
 from dfc.io.container import decode_dfield, encode_dfield, with_residual
+import dfc.codec
 import dfc.io.residual as residual_module
 from dfc.io.residual import (AVIF_MATRIX, RESIDUAL_BITS, decode_residual, encode_residual, payload_head,
                              payload_streams)
@@ -298,3 +299,50 @@ def test_auto_gives_the_residual_what_the_field_s_cap_leaves_when_the_field_fits
     blob, report = encode_image(raster, curves, replace(settings, target_bytes=target))
     assert len(blob) <= target and report.chunk_bytes["rESD"] > target - (field + 200) - 400
     assert report.chunk_bytes["rESD"] > round(RESIDUAL_SHARE * target)
+
+
+def test_without_a_target_a_clean_image_shares_its_default_mesh_s_bytes_with_a_residual(shapes_64):
+    raster, curves = shapes_64
+    settings = EncodeSettings(steps=40, batch_size=2048)
+    blob, report = encode_image(raster, curves, settings)
+    assert report.default_target is not None and len(blob) <= report.default_target
+    assert report.chunk_bytes["rESD"] >= RESIDUAL_MIN_BYTES and decode_dfield(blob).residual is not None
+    info = loads(blob).header["encoder"]
+    assert info["target_bytes"] == report.default_target and info["default_target"] is True
+    alone, alone_report = encode_image(raster, curves, replace(settings, residual_bytes=0))
+    assert alone_report.default_target is None and decode_dfield(alone).residual is None
+    assert "target_bytes" not in loads(alone).header["encoder"]
+    noisy = raster + np.random.default_rng(1).normal(0.0, 0.01, raster.shape).astype(np.float32)
+    blob, report = encode_image(noisy, curves, settings)  # a residual would code the noise: the field alone
+    assert report.default_target is None and decode_dfield(blob).residual is None
+
+
+def test_without_a_target_a_mesh_size_or_curves_too_costly_for_a_share_keep_the_field_alone(shapes_64, monkeypatch):
+    raster, curves = shapes_64
+    settings = EncodeSettings(steps=40, batch_size=2048)
+    sized, report = encode_image(raster, curves, replace(settings, max_triangles=150))
+    assert report.default_target is None and decode_dfield(sized).residual is None
+    alone = encode_image(raster, curves, replace(settings, residual_bytes=0))[1]
+    monkeypatch.setattr(dfc.codec, "smallest_bytes", lambda *a, **k: 1 << 30)  # no share leaves the field enough
+    blob, report = encode_image(raster, curves, settings)
+    assert report.default_target is None and decode_dfield(blob).residual is None
+    fields = {k: v for k, v in report.chunk_bytes.items() if k != "HEAC"}  # the header records residual_bytes 0
+    assert fields == {k: v for k, v in alone.chunk_bytes.items() if k != "HEAC"} and report.psnr == alone.psnr
+
+
+def test_smallest_bytes_is_the_mesh_the_curves_force_at_the_fewest_feature_bits(shapes_64):
+    from dfc.errors import TriangleBudgetError
+    from dfc.rate import FEATURE_BITS_FALLBACK, build_mesh, mesh_bytes, smallest_bytes
+
+    _, curves = shapes_64
+    settings = EncodeSettings(feature_bits=10)
+    least = smallest_bytes(curves, settings, ["R", "G", "B"])
+    cap, forced = 2, None
+    while forced is None:  # the fewest triangles the curves allow
+        try:
+            forced = build_mesh(curves, replace(settings, max_triangles=cap))
+        except TriangleBudgetError as e:
+            cap = max(e.needed, cap + 1)
+    assert least == mesh_bytes(forced, replace(settings, feature_bits=FEATURE_BITS_FALLBACK[-1]), ["R", "G", "B"])
+    larger = build_mesh(curves, replace(settings, max_triangles=4 * cap))
+    assert least < mesh_bytes(larger, replace(settings, feature_bits=FEATURE_BITS_FALLBACK[-1]), ["R", "G", "B"])

@@ -114,7 +114,8 @@ def _curves_arg(ctx, param, value):
                    "the input's pixel grid, AVIF-coded, interpolated bilinearly at other resolutions) in at most N "
                    "bytes, taken out of --target-bytes when given; 0: none; auto: for a clean image (no measurable "
                    "noise) half of --target-bytes, or more where half would leave the field over 0.5 bits per "
-                   "pixel; else none.")
+                   "pixel; without --target-bytes (and no other size option), the same share of a target the "
+                   "encoder sets itself: the bytes of the default mesh with incompressible features; else none.")
 @click.option("--weight-bits", type=int, default=StorageSettings.weight_bits, show_default=True,
               help="Bits per integer MLP weight (2..16; per-row scales, learnt in the quantisation-aware steps); "
                    "0: float16.")
@@ -390,6 +391,9 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
                      "byte: the byte target is too small for all of them (--no-prune-curves refuses it instead)")
     if refined is not None:
         lines.append(f"curves refined against the pixels: {refined.summary()}")
+    if report.default_target:
+        lines.append(f"no --target-bytes: a clean image gets the bytes of its default mesh ({report.default_target}) "
+                     "as a target, shared with a residual raster (--residual-bytes 0 stores the field alone)")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
     if report.units:

@@ -63,6 +63,8 @@ def test_encode_summary_and_stats(encoded, capsys):
     path, report = encoded
     assert report["total_bytes"] == path.stat().st_size
     assert report["psnr"] > 33.0  # 150 steps; the default 1000 reach about 44 dB
+    # a clean image without --target-bytes: its default mesh's bytes are a target, shared with a residual
+    assert report["total_bytes"] <= report["default_target"] and report["chunk_bytes"]["rESD"] > 0
     code, out, _ = run(["stats", path, "--json"], capsys)
     assert code == 0
     s = json.loads(out)
@@ -81,6 +83,24 @@ def test_encode_summary_and_stats(encoded, capsys):
     code, out, _ = run(["stats", path], capsys)
     assert code == 0 and "curved triangles" in out and str(report["n_triangles"]) in out and "offset + scale" in out
     assert "triangles derived" in out and f"{s['mesh']['control_points']} (TOPC)" in out
+
+
+def test_encode_says_when_it_sets_a_byte_target_itself(tmp_path, capsys):
+    from dfc.bench.pixel_filters import filtered_raster
+    from dfc.bench.scenes import shapes_scene
+    from dfc.geometry.sources.jsonfile import write_json
+
+    scene = shapes_scene()
+    image, curves, out = tmp_path / "shapes.exr", tmp_path / "shapes.json", tmp_path / "shapes.dfield"
+    write_exr(image, filtered_raster(scene, 64, 64, "box:4"), ["R", "G", "B"], half=False)
+    write_json(scene.curves, curves)
+    base = ["encode", image, "--curves", curves, "--fit-curves-to-image", "-o", out, "--steps", "40"]
+    code, text, err = run(base, capsys)
+    assert code == 0, err
+    assert "no --target-bytes: a clean image gets the bytes of its default mesh" in text and "rESD" in text
+    code, text, err = run([*base, "--residual-bytes", "0"], capsys)
+    assert code == 0, err
+    assert "no --target-bytes" not in text and "rESD" not in text
 
 
 def test_decode_matches_reported_psnr_and_is_deterministic(encoded, tmp_path, capsys):

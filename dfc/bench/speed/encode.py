@@ -1,7 +1,9 @@
 """``dfc benchmark encode``: time to quality of an image encode, and where a fit step's time goes.
 
 Encodes IMAGE with its ``--curves`` (default: the README's sample, ``samples/sample.exr`` and ``sample.json``) as
-``dfc encode`` does with its defaults (``--steps`` and ``--batch-size`` as given), for each ``--threads`` count, alone
+``dfc encode --residual-bytes 0`` does with its defaults (``--steps`` and ``--batch-size`` as given: one fit; without
+``--residual-bytes 0`` a clean image also gets a byte target of its own and refits, ``dfc.codec._default_target``),
+for each ``--threads`` count, alone
 and beside a busy neighbour (``dfc.bench.neighbour``). Each run prints the fit's seconds, its steps, the summary's
 1× PSNR of the written file, and the time at which the fit came within 0.1 dB of its final training PSNR: the PSNR
 of the mean squared error of the last epoch's batches (enough steps to see every training pixel once), measured on
@@ -18,6 +20,7 @@ against the others (from the timed run's steps).
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -105,8 +108,9 @@ def breakdown(run_encode, steps: int) -> dict[str, float]:
 @quiet_option
 def command(image: str | None, curves_path: str | None, fit_curves: bool, steps: int | None, batch_size: int | None, profile_steps: int,
             thread_counts: tuple[int, ...], neighbour: bool, json_path: str | None, quiet: bool) -> None:
-    """Time to quality of an image encode (fit seconds, steps, 1x PSNR, time to within 0.1 dB of the final
-    training PSNR) for each --threads count, alone and beside a busy neighbour, and a per-step breakdown."""
+    """Time to quality of an image encode, the field alone (fit seconds, steps, 1x PSNR, time to within 0.1 dB of
+    the final training PSNR) for each --threads count, alone and beside a busy neighbour, and a per-step
+    breakdown."""
     import torch
 
     from ...codec import EncodeSettings, encode_image, image_decoder
@@ -121,14 +125,14 @@ def command(image: str | None, curves_path: str | None, fit_curves: bool, steps:
     img = read_image(image_path)
     curves = read_curves(curves_file)
     given = {k: v for k, v in (("steps", steps), ("batch_size", batch_size)) if v is not None}
-    settings = EncodeSettings(**given)
+    settings = EncodeSettings(**given, residual_bytes=0)  # one fit: the field alone
     err = stdout_taken(json_path)
     h, w = img.pixels.shape[:2]
 
     width = image_decoder(settings, img.pixels.size, img.pixels.shape[2]).hidden  # the timed runs' decoder
 
     def run_encode(n_steps, callback):
-        run = settings if n_steps is None else EncodeSettings(**{**given, "steps": n_steps, "hidden": width})
+        run = settings if n_steps is None else replace(settings, steps=n_steps, hidden=width)
         return encode_image(img, curves, run, callback=callback, fit_curves=fit_curves)
 
     stats = {"image": image_path.name, "curves": curves_file.name, "width": w, "height": h, "runs": []}
