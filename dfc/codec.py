@@ -223,18 +223,17 @@ def _residual_auto(encode):
         pixels = check_pixels(image)
         default, choices = _default_target(pixels, getattr(image, "channels", None), curves, settings,
                                            kw.get("fit_curves", False))
+        own = settings if default is None else \
+            replace(settings, target_bytes=default, refine=0 if settings.refine is None else settings.refine)
         for n in choices if default else residual_choices(pixels, settings.target_bytes):
             try:
-                if default is None:
-                    return encode(image, curves, settings, residual=n, **kw)
-                own = replace(settings, target_bytes=default, refine=0 if settings.refine is None else settings.refine)
-                blob, report = encode(image, curves, own, residual=n, default_target=True, **kw)
-                report.default_target = default
-                return blob, report
+                blob, report = encode(image, curves, own, residual=n, default_target=default is not None, **kw)
             except TargetBytesError:
                 continue
             except ResidualBytesError:
                 break
+            report.default_target = default
+            return blob, report
         return encode(image, curves, settings, residual=0, **kw)
 
     return resolved
