@@ -140,16 +140,16 @@ def _in_pixels(scene, w: int, h: int):
 def zoom_row(scene, pixels: np.ndarray, found, refined, steps: int, exact=None) -> dict:
     """Edge zoom PSNR (``dfc.bench.speed.rate.measure``: 33× and 100× windows on the middle of every true curve,
     against the exact scene; the mean, and at 100× each window's in curve order) of encodes of ``pixels`` at equal
-    bytes, ``steps`` steps each (no mesh refinement rounds): the extracted curves ``found`` at the default size, then
-    the true curves and the refined ones ``refined`` with that file's size as their byte target; a fourth of the
-    curves ``exact`` when given (the true curves refined: stage ``exact``). ``scene`` is in the raster's pixel
-    units."""
+    bytes, ``steps`` steps each (no mesh refinement rounds): the extracted curves ``found`` at the default size (the
+    field alone), then the true curves and the refined ones ``refined`` with that file's size as their byte target;
+    a fourth of the curves ``exact`` when given (the true curves refined: stage ``exact``). ``scene`` is in the
+    raster's pixel units."""
     from ...codec import EncodeSettings, encode_image
     from ...errors import TargetBytesError
     from .rate import measure
 
     row = {}
-    blob, _ = encode_image(pixels, found, EncodeSettings(steps=steps, refine=0))
+    blob, _ = encode_image(pixels, found, EncodeSettings(steps=steps, refine=0, residual_bytes=0))
     target = len(blob)
     sets = [("auto", found, blob), ("true", scene.curves, None), ("refined", refined, None)]
     for key, curves, b in sets + ([("exact", exact, None)] if exact is not None else []):
