@@ -91,8 +91,9 @@ def filtered_raster(scene: AnalyticScene, width: int, height: int, pixel_filter:
 def pixel_filter_table(size: int = 96, steps: int = 300, target_bytes: int = 8000, progress=None) -> dict:
     """The benchmark: for each of ``GENERATIONS`` a ``size``² raster of ``polygon_scene``, encoded for ``steps``
     steps under ``target_bytes`` (no refinement round) assuming each of ``ASSUMED``; then the point-sampled raster at
-    the default rate (the field alone, no residual) assuming ``point`` and ``box``. Returns {"rows": [{generation, assumed, chosen, bytes, psnr_1x,
-    psnr_zoom}], "default_rate": [{assumed, bytes, psnr_1x}], "size", "steps", "target_bytes", "zoom", "probes"};
+    the default rate (the field alone, no residual) assuming ``point`` and ``box``. Returns {"rows": [{generation,
+    assumed, chosen, bytes, psnr_1x, psnr_zoom}], "default_rate": [{assumed, bytes, psnr_1x}], "size", "steps",
+    "target_bytes", "zoom", "probes"};
     ``progress(row)`` after each encode. ``psnr_zoom``: the ``ZOOM``× windows centred on the middle of each polygon's
     middle edge, ``WINDOW``² pixels at their centres (``dfc decode``'s default rule: point samples), against the
     exact scene there, one PSNR over all windows."""

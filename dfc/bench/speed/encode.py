@@ -2,9 +2,9 @@
 
 Encodes IMAGE with its ``--curves`` (default: the README's sample, ``samples/sample.exr`` and ``sample.json``) as
 ``dfc encode --residual-bytes 0`` does with its defaults (``--steps`` and ``--batch-size`` as given: one fit; without
-``--residual-bytes 0`` a clean image also gets a byte target of its own and refits, ``dfc.codec._default_target``),
-for each ``--threads`` count, alone
-and beside a busy neighbour (``dfc.bench.neighbour``). Each run prints the fit's seconds, its steps, the summary's
+``--residual-bytes 0`` a clean image also gets a byte target of its own and a residual raster,
+``dfc.codec._default_target``), for each ``--threads`` count, alone and beside a busy neighbour
+(``dfc.bench.neighbour``). Each run prints the fit's seconds, its steps, the summary's
 1× PSNR of the written file, and the time at which the fit came within 0.1 dB of its final training PSNR: the PSNR
 of the mean squared error of the last epoch's batches (enough steps to see every training pixel once), measured on
 the steps before the quantisation-aware ones, timed from the start of the fit (setup included).
