@@ -29,9 +29,9 @@ from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
 from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, build_mesh, decoder_hidden, features_at, field_bytes, image_mesh_size, is_clean,
-                   mesh_bytes, mesh_size_set, residual_choices, sample_mesh_size, size_at, sized_mesh,
-                   smallest_bytes)
+                   SHORT_FIT_HIDDEN, build_mesh, decoder_hidden, features_at, field_bytes, forced_mesh,
+                   image_mesh_size, is_clean, mesh_bytes, mesh_size_set, residual_choices, sample_mesh_size, size_at,
+                   sized_mesh, smallest_bytes)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -260,11 +260,14 @@ def _default_target(pixels: np.ndarray, channels: list[str] | None, curves: Curv
     sized = image_decoder(sized, pixels.size, c)
     target = mesh_bytes(build_mesh(curves, sized) if mesh is None else mesh, sized, channels)
 
-    def room(n: int) -> bool:  # the field's share holds the curves' smallest file, with the decoder it would get
-        field = image_decoder(replace(base, target_bytes=target - n), pixels.size, c)
-        return target - n >= smallest_bytes(curves, replace(field, target_bytes=None), channels)
+    choices = residual_choices(pixels, target, clean=True)
+    forced = forced_mesh(curves, base) if choices else None
 
-    choices = [n for n in residual_choices(pixels, target) if room(n)]
+    def room(n: int) -> bool:  # the field's share holds the curves' smallest file, with the decoder it would get
+        return target - n >= smallest_bytes(forced, image_decoder(replace(base, target_bytes=target - n),
+                                                                  pixels.size, c), channels)
+
+    choices = [n for n in choices if room(n)]
     return (target, choices) if choices else (None, [])
 
 

@@ -24,7 +24,7 @@ __all__ = ["COARSE_FEATURE_BITS", "COARSE_LOSS_DB", "DECODER_SHARE", "FEATURE_BI
            "FILL_CARRY_POINTS", "FILL_RETRIES", "HALVING_COST", "NOISY_SAMPLES_PER_TRIANGLE", "PIXELS_PER_TRIANGLE",
            "REFINE_SHARE", "RESIDUAL_FIELD_BPP", "RESIDUAL_MIN_BYTES", "RESIDUAL_NOISE", "RESIDUAL_SHARE",
            "SHORT_FIT_HIDDEN", "TARGET_BYTES_PROBES", "build_mesh", "decoder_hidden", "features_at", "field_bytes",
-           "fill_points", "image_mesh_size", "is_clean", "mesh_bytes", "mesh_for_bytes", "mesh_size_set",
+           "fill_points", "forced_mesh", "image_mesh_size", "is_clean", "mesh_bytes", "mesh_for_bytes", "mesh_size_set",
            "refinement_points", "residual_choices", "sample_mesh_size", "size_at", "sized_mesh", "smallest_bytes"]
 
 TARGET_BYTES_PROBES = 12
@@ -238,12 +238,17 @@ def mesh_bytes(mesh: Mesh, settings, channels: list[str], size_of=None) -> int:
     return size_of(model)
 
 
-def smallest_bytes(curves: Curves, settings, channels: list[str]) -> int:
-    """Bytes of the smallest file a byte target could get for ``curves`` (``mesh_for_bytes`` with every feature depth
-    of ``FEATURE_BITS_FALLBACK``): the mesh the curves force, with incompressible features (``mesh_bytes``) of
-    ``FEATURE_BITS_FALLBACK[-1]`` bits; ``settings`` must set no mesh size."""
-    sized, mesh = _counted_mesh(curves, settings, 2)
-    return mesh_bytes(mesh, replace(sized, feature_bits=FEATURE_BITS_FALLBACK[-1]), channels)
+def forced_mesh(curves: Curves, settings) -> Mesh:
+    """The decoder-view mesh with the fewest triangles ``curves`` allow (what they force); ``settings`` must set no
+    mesh size."""
+    return _counted_mesh(curves, settings, 2)[1]
+
+
+def smallest_bytes(forced: Mesh, settings, channels: list[str]) -> int:
+    """Bytes of the smallest file a byte target could get on the mesh the curves force (``forced_mesh``, as
+    ``mesh_for_bytes`` with every feature depth of ``FEATURE_BITS_FALLBACK`` would): its incompressible features
+    (``mesh_bytes``) at ``FEATURE_BITS_FALLBACK[-1]`` bits, with the decoder of ``settings``."""
+    return mesh_bytes(forced, replace(settings, feature_bits=FEATURE_BITS_FALLBACK[-1]), channels)
 
 
 def mesh_for_bytes(curves: Curves, settings, channels: list[str], size_of=None) -> Mesh:
@@ -360,18 +365,19 @@ def _forced_triangles(curves: Curves, settings) -> int:
     return 0
 
 
-def residual_choices(pixels: np.ndarray, target_bytes: int | None) -> list[int]:
+def residual_choices(pixels: np.ndarray, target_bytes: int | None, clean: bool | None = None) -> list[int]:
     """The residual bytes ``--residual-bytes auto`` tries for an image ``pixels`` (H, W, C) under ``target_bytes``,
     in order, while the field does not fit what they leave (``dfc.codec._residual_auto``): for a clean image
     (``dfc.metrics.noise_sigma`` below ``RESIDUAL_NOISE``) the bytes that leave the field ``RESIDUAL_FIELD_BPP``
     bits per pixel, when that is more than ``RESIDUAL_SHARE`` of the target, then that share; none under
-    ``RESIDUAL_MIN_BYTES``. Empty for a noisy image (``is_clean``) and without a target."""
+    ``RESIDUAL_MIN_BYTES``. Empty for a noisy image (``is_clean``, unless ``clean`` says it already) and without a
+    target."""
     if target_bytes is None:
         return []
     share = round(RESIDUAL_SHARE * target_bytes)
     capped = target_bytes - round(RESIDUAL_FIELD_BPP * pixels.shape[0] * pixels.shape[1] / 8)
     choices = [n for n in dict.fromkeys((max(share, capped), share)) if n >= RESIDUAL_MIN_BYTES]
-    return choices if choices and is_clean(pixels) else []
+    return choices if choices and (is_clean(pixels) if clean is None else clean) else []
 
 
 def is_clean(pixels: np.ndarray) -> bool:

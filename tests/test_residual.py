@@ -332,11 +332,11 @@ def test_without_a_target_a_mesh_size_or_curves_too_costly_for_a_share_keep_the_
 
 def test_smallest_bytes_is_the_mesh_the_curves_force_at_the_fewest_feature_bits(shapes_64):
     from dfc.errors import TriangleBudgetError
-    from dfc.rate import FEATURE_BITS_FALLBACK, build_mesh, mesh_bytes, smallest_bytes
+    from dfc.rate import FEATURE_BITS_FALLBACK, build_mesh, forced_mesh, mesh_bytes, smallest_bytes
 
     _, curves = shapes_64
     settings = EncodeSettings(feature_bits=10)
-    least = smallest_bytes(curves, settings, ["R", "G", "B"])
+    least = smallest_bytes(forced_mesh(curves, settings), settings, ["R", "G", "B"])
     cap, forced = 2, None
     while forced is None:  # the fewest triangles the curves allow
         try:
