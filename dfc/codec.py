@@ -88,7 +88,8 @@ class EncodeReport:
     ``auto`` chose it (``Detection.evidence``). ``pruned_curves``: when a byte target too small for every curve
     given made the encoder prune them (``encode_image(..., prune_to_fit=True)``), ``Pruned.to_dict`` of that, else
     None. ``default_target``: the byte target the encoder gave a clean image encoded without one, shared with a
-    residual raster (``_default_target``), else None."""
+    residual raster (``_default_target``), else None. ``flat_rows``: the feature rows set to the exact value of a
+flat region of an image (``dfc.train.flat``; 0: none)."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -110,6 +111,7 @@ class EncodeReport:
     units: str = ""
     pruned_curves: dict | None = None
     default_target: int | None = None
+    flat_rows: int = 0
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -391,15 +393,21 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                                                   "hdr": scale.tonemap,
                                                   **({"curves": curves_info} if curves_info else {})})
     stored = str(pixel_filter)
+
+    def size_of(m):
+        return len(encode_model(m, settings, info, (1.0, 1.0), value_map, stored)[0])
+
     model, seconds = _mesh_and_fit(fit_image, fitted, curves, settings, channels, callback, mesh=mesh,
-                                   residual=residual, min_area=0.25,
-                                   size_of=lambda m: len(encode_model(m, settings, info, (1.0, 1.0), value_map,
-                                                                      stored)[0]),
+                                   residual=residual, min_area=0.25, size_of=size_of,
                                    quality=lambda m: fit_scale.psnr(fitted, render(m, w, h, pixel_filter=pixel_filter)),
                                    fewer_bits=chosen_bits, data_range=fit_scale.data_range,
                                    tonemap=fit_scale.tonemap, pixel_filter=pixel_filter)
     seconds["mesh_s"] += sizing_s
     seconds = {"detect_s": detect_s, **seconds}
+    clock = time.perf_counter()
+    mixed = pixel_filter.filtered(edge_pixels(model.field.mesh, h, w))
+    flat_rows = _snap_flat(model, fitted, curves.domain, settings, fit_scale.data_range, mixed, size_of)
+    seconds["flat_s"] = time.perf_counter() - clock
     rendered = []  # the written file's 1x render, which the residual completes
 
     def truth(m):
@@ -413,7 +421,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
             n_residual += max(0, settings.target_bytes - len(blob))
         blob = _with_residual(blob, report, pixels, rendered[0], n_residual, scale,
                               lambda m: render(m, w, h, pixel_filter=pixel_filter), settings.device)
-    report.pixel_filter = stored
+    report.pixel_filter, report.flat_rows = stored, flat_rows
     report.pixel_evidence = detection.evidence() if detection else None
     return blob, report
 
@@ -867,6 +875,26 @@ def _with_residual(blob: bytes, report: EncodeReport, pixels: np.ndarray, base: 
     report.bits_per_pixel = 8.0 * len(blob) / (pixels.shape[0] * pixels.shape[1])
     report.seconds["residual_s"] = time.perf_counter() - clock
     return blob
+
+
+def _snap_flat(model, pixels: np.ndarray, domain, settings: EncodeSettings, data_range: float, mixed: np.ndarray,
+               size_of: Callable[[object], int]) -> int:
+    """``dfc.train.flat.snap_flat_rows`` on a fitted image model (``mixed`` (H, W) bool: the pixels a curve crosses),
+    evaluated with the features and weights its file will store (its quantisation as written, ``storage``); the rows
+    it changed. Under a byte target the change is kept only when the file (``size_of(model)``: its bytes) still
+    fits."""
+    from .train.flat import snap_flat_rows
+
+    kept = model.quantization
+    stored = storage(settings, model)
+    target = settings.target_bytes
+    model.quantization = {"feature_bits": stored["feature_bits"],
+                          **({"weight_bits": stored["weight_bits"]} if stored["weight_bits"] else {})}
+    try:
+        return snap_flat_rows(model, pixels, domain, stored["feature_bits"], data_range, mixed,
+                              accept=(lambda m: size_of(m) <= target) if target else None)
+    finally:
+        model.quantization = kept
 
 
 def _finish(model, settings: EncodeSettings, info: dict, seconds: dict, n_pixels: int,

@@ -394,6 +394,9 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
     if report.default_target:
         lines.append(f"no --target-bytes: a clean image gets the bytes of its default mesh ({report.default_target}) "
                      "as a target, shared with a residual raster (--residual-bytes 0 stores the field alone)")
+    if report.flat_rows:
+        lines.append(f"flat regions: {report.flat_rows} feature rows share the stored vector nearest their region's "
+                     "exact value")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
     lines.append(f"mesh: {report.n_vertices} vertices, {report.n_triangles} triangles; {report.n_features} features")
     if report.units:

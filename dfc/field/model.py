@@ -129,9 +129,16 @@ class FieldModel(nn.Module):
                 F = weighted_rows(self.field.bank[0], idx, w)
             F = F.to(torch.float32)
         with record_function(DECODE):
-            if self.encoding is not None:
-                F = torch.cat([F, self.encoding(xy)], dim=1)
-            y = self.decoder(F)
+            return self.decode(F, xy)
+
+    def decode(self, F: Tensor, xy: Tensor | None = None) -> Tensor:
+        """Signal values (N, C) of features F (N, dim) float32 (at positions xy (N, 2), needed only with a one-blob
+        encoding): the decoder and the value transform or ``value_map``, without the residual."""
+        if self.encoding is not None:
+            if xy is None:
+                raise ValueError("decoding features with a one-blob encoding needs their positions")
+            F = torch.cat([F, self.encoding(xy)], dim=1)
+        y = self.decoder(F)
         if self.value_map is not None:
             return self.value_map.apply(y)
         return torch.expm1(y) if self.transform == "log" else y
