@@ -89,7 +89,7 @@ class EncodeReport:
     given made the encoder prune them (``encode_image(..., prune_to_fit=True)``), ``Pruned.to_dict`` of that, else
     None. ``default_target``: the byte target the encoder gave a clean image encoded without one, shared with a
     residual raster (``_default_target``), else None. ``flat_rows``: the feature rows set to the exact value of a
-flat region of an image (``dfc.train.flat``; 0: none)."""
+    flat region of an image (``dfc.train.flat``; 0: none)."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
