@@ -26,6 +26,7 @@ import torch
 from torch.nn.utils import parametrize
 
 from ..field.quantize import feature_ranges, quantize_features
+from ..render import window_points
 
 __all__ = ["FLAT_TOLERANCE", "snap_flat_rows"]
 
@@ -60,7 +61,7 @@ def _points(pixels: np.ndarray, domain, ignore: np.ndarray) -> tuple[np.ndarray,
         [pad_lo[:-1, :-1], pad_lo[:-1, 1:], pad_lo[1:, :-1], pad_lo[1:, 1:]]).reshape(-1, c)])
     hi = np.concatenate([high.reshape(-1, c), np.maximum.reduce(
         [pad_hi[:-1, :-1], pad_hi[:-1, 1:], pad_hi[1:, :-1], pad_hi[1:, 1:]]).reshape(-1, c)])
-    return np.concatenate([_centres(domain, w, h), corners]), lo, hi
+    return np.concatenate([window_points(domain, w, h), corners]), lo, hi
 
 
 def _weighed(model, xy: np.ndarray):
@@ -188,7 +189,7 @@ def snap_flat_rows(model, pixels: np.ndarray, domain, bits: int, data_range: flo
         return 0  # float rounding moved the lattice: left as it is
     before = raw.detach().clone()
     keep = ~ignore.reshape(-1)
-    centres, values = _centres(domain, w, h)[keep], pixels.reshape(-1, c)[keep]
+    centres, values = window_points(domain, w, h)[keep], pixels.reshape(-1, c)[keep]
     err_before = _squared_error(model, centres, values)
     with torch.no_grad():
         raw[0, changed] = torch.from_numpy(new[changed]).to(raw)
@@ -199,12 +200,6 @@ def snap_flat_rows(model, pixels: np.ndarray, domain, bits: int, data_range: flo
             raw.copy_(before)
         return 0
     return int(len(changed))
-
-
-def _centres(domain, w: int, h: int) -> np.ndarray:
-    x0, y0, x1, y1 = domain
-    jj, ii = np.meshgrid(np.arange(w), np.arange(h))
-    return np.stack([x0 + (jj.ravel() + 0.5) * (x1 - x0) / w, y0 + (ii.ravel() + 0.5) * (y1 - y0) / h], axis=1)
 
 
 def _squared_error(model, xy: np.ndarray, values: np.ndarray) -> float:
