@@ -26,7 +26,7 @@ import torch
 from torch.nn.utils import parametrize
 
 from ..field.quantize import feature_ranges, quantize_features
-from ..render import window_points
+from ..render import values_at, window_points
 
 __all__ = ["FLAT_TOLERANCE", "snap_flat_rows"]
 
@@ -102,10 +102,16 @@ def _bank(model) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 def _distances(model, F: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """(N,) squared distance of the decoded values of features F (N, dim) to ``target`` (C,)."""
+    """(N,) squared distance of the decoded values of features F (N, dim) to ``target`` (C,), decoded on the model's
+    device."""
     with torch.no_grad():
-        out = model.decode(torch.from_numpy(np.ascontiguousarray(F, np.float32))).double()
-    return ((out - torch.from_numpy(target)) ** 2).sum(dim=1).numpy()
+        out = model.decode(torch.from_numpy(np.ascontiguousarray(F, np.float32)).to(model.field.bank.device))
+    return ((out.double().cpu().numpy() - target) ** 2).sum(axis=1)
+
+
+def _squared_error(model, xy: np.ndarray, values: np.ndarray) -> float:
+    """Sum of the squared differences of ``model`` at xy (N, 2) from ``values`` (N, C)."""
+    return float(((values_at(model, xy, device=str(model.field.bank.device), block=_BLOCK) - values) ** 2).sum())
 
 
 def _search(model, starts: np.ndarray, target: np.ndarray, scale: np.ndarray, offset: np.ndarray, top: int,
@@ -200,13 +206,3 @@ def snap_flat_rows(model, pixels: np.ndarray, domain, bits: int, data_range: flo
             raw.copy_(before)
         return 0
     return int(len(changed))
-
-
-def _squared_error(model, xy: np.ndarray, values: np.ndarray) -> float:
-    """Sum of the squared differences of ``model`` at xy (N, 2) from ``values`` (N, C)."""
-    total = 0.0
-    with torch.no_grad():
-        for i in range(0, len(xy), _BLOCK):
-            out = model(torch.from_numpy(xy[i:i + _BLOCK])).double().cpu().numpy()
-            total += float(((out - values[i:i + _BLOCK]) ** 2).sum())
-    return total
