@@ -383,10 +383,13 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     sizing_s = time.perf_counter() - clock
     settings = replace(image_decoder(settings, pixels.size, c), refine=refine_rounds(settings))
 
+    def mixed(m):  # (H, W) bool: the pixels a curve of m's mesh changes under the pixel filter
+        return pixel_filter.filtered(edge_pixels(m.field.mesh, h, w))
+
     def residual(m):  # squared error at the pixel centres (those a curve changes left out): refinement
         centres = window_points(curves.domain, w, h)
         err = _error(m, centres, fitted.reshape(-1, c), settings)
-        err[pixel_filter.filtered(edge_pixels(m.field.mesh, h, w)).ravel()] = 0.0
+        err[mixed(m).ravel()] = 0.0
         return centres, err
 
     info = encoder_info(settings, curves.source, {**asked, "input": f"image {w}x{h}", "pixels": w * h,
@@ -405,8 +408,7 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     seconds["mesh_s"] += sizing_s
     seconds = {"detect_s": detect_s, **seconds}
     clock = time.perf_counter()
-    mixed = pixel_filter.filtered(edge_pixels(model.field.mesh, h, w))
-    flat_rows = _snap_flat(model, fitted, curves.domain, settings, fit_scale.data_range, mixed, size_of)
+    flat_rows = _snap_flat(model, fitted, curves.domain, settings, fit_scale.data_range, mixed(model), size_of)
     seconds["flat_s"] = time.perf_counter() - clock
     rendered = []  # the written file's 1x render, which the residual completes
 
