@@ -28,10 +28,10 @@ from .geometry.curves import Curves, fit_curves_to_domain, split_pieces
 from .io.dfield import encode_model, encoder_info, load, loads, storage
 from .metrics import QualityScale, is_hdr, quality_scale
 from .metrics import data_range as signal_range
-from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL, FILL_RETRIES,
-                   SHORT_FIT_HIDDEN, build_mesh, decoder_hidden, features_at, field_bytes, forced_mesh,
-                   image_mesh_size, is_clean, mesh_bytes, mesh_size_set, residual_choices, sample_mesh_size, size_at,
-                   sized_mesh, smallest_bytes)
+from .rate import (COARSE_FEATURE_BITS, COARSE_LOSS_DB, DECODER_HIDDEN, DECODER_SHARE, FEATURE_BITS_FALLBACK, FILL,
+                   FILL_RETRIES, RASTER_MARGIN_DB, RASTER_STEPS, RASTER_TRIANGLES, SHORT_FIT_HIDDEN, build_mesh,
+                   decoder_hidden, features_at, field_bytes, forced_mesh, image_mesh_size, is_clean, mesh_bytes,
+                   mesh_size_set, residual_choices, sample_mesh_size, size_at, sized_mesh, smallest_bytes)
 from .render import values_at
 from .settings import EncodeSettings
 from .train.fit import BATCH_SIZE, DECODER_LR_MIN_STEPS, DEFAULT_STEPS, IMAGE_STEPS
@@ -89,7 +89,10 @@ class EncodeReport:
     given made the encoder prune them (``encode_image(..., prune_to_fit=True)``), ``Pruned.to_dict`` of that, else
     None. ``default_target``: the byte target the encoder gave a clean image encoded without one, shared with a
     residual raster (``_default_target``), else None. ``flat_rows``: the feature rows set to the exact value of a
-    flat region of an image (``dfc.train.flat``; 0: none)."""
+    flat region of an image (``dfc.train.flat``; 0: none; in the raster mode every row). ``raster_mode``: the file
+    is the raster mode's, a constant field and a residual raster holding the image (``_raster_mode``);
+    ``field_psnr`` is then the PSNR of the file with a fitted field it replaced (None when no such file fitted the
+    target)."""
 
     chunk_bytes: dict[str, int]
     total_bytes: int
@@ -112,6 +115,8 @@ class EncodeReport:
     pruned_curves: dict | None = None
     default_target: int | None = None
     flat_rows: int = 0
+    raster_mode: bool = False
+    field_psnr: float | None = None
 
 
 def check_domain(curves: Curves, width: int, height: int, fit: bool) -> Curves:
@@ -309,12 +314,66 @@ def _pruned_to_fit(encode):
     return resolved
 
 
+def _raster_mode(encode):
+    """``encode_image`` that, for a clean image (``dfc.rate.is_clean``) under ``--residual-bytes auto``, also makes
+    the raster mode's file at the same size (the byte target, else the size of the file the encode made) and keeps
+    it when its PSNR is ``dfc.rate.RASTER_MARGIN_DB`` or more above the field's file's. Its field has
+    ``dfc.rate.RASTER_TRIANGLES`` triangles, no curves and one vector in every feature row
+    (``dfc.train.flat.constant_rows``), so that it decodes one value; its residual raster holds the image
+    (docs/design.md §12). On content the field does not model (test charts, textures, fills with sharp edges) a
+    field's residual codes worse than the image itself. When the field cannot fit a byte target
+    (``TargetBytesError``), the raster mode's file is made instead when it fits. ``raster_mode=False``, a PSNR
+    target, residual bytes or a mesh size given (without a byte target): ``encode`` alone."""
+
+    @functools.wraps(encode)
+    def resolved(image, curves: Curves, settings: EncodeSettings | None = None, *, raster_mode: bool = True, **kw):
+        settings = settings or EncodeSettings()
+        if not raster_mode or settings.residual_bytes != "auto" or settings.target_psnr is not None or \
+                (settings.target_bytes is None and mesh_size_set(settings)):
+            return encode(image, curves, settings, **kw)
+        from .io.image import check_pixels
+
+        pixels = check_pixels(image)
+        if not is_clean(pixels):
+            return encode(image, curves, settings, **kw)
+        try:
+            blob, report = encode(image, curves, settings, **kw)
+        except TargetBytesError as exc:
+            if settings.target_bytes is None:
+                raise
+            blob, report, refused = None, None, exc
+        h, w = pixels.shape[:2]
+        nothing = Curves((0.0, 0.0, float(w), float(h)), np.zeros((0, 4, 2)), [], [], np.zeros((0, 2)))
+        own = replace(settings, target_bytes=None, max_triangles=RASTER_TRIANGLES, max_area=None, edge_length=None,
+                      refine=0, steps=RASTER_STEPS, qat_steps=None, hidden=DECODER_HIDDEN[0], pixel_filter="box",
+                      residual_bytes=0, feature_bits=settings.feature_bits or DEFAULT_FEATURE_BITS)
+        clock = time.perf_counter()
+        try:
+            raster = encode(image, nothing, own, raster_bytes=settings.target_bytes or len(blob))
+        except ResidualBytesError:
+            raster = None
+        seconds = time.perf_counter() - clock
+        if raster is None or (report is not None and raster[1].psnr < report.psnr + RASTER_MARGIN_DB):
+            if report is None:
+                raise refused
+            report.seconds["raster_s"] = seconds
+            return blob, report
+        blob, chosen = raster
+        chosen.raster_mode, chosen.field_psnr = True, None if report is None else report.psnr
+        chosen.seconds = {**(report.seconds if report else {}), "raster_s": seconds}
+        return blob, chosen
+
+    return resolved
+
+
+@_raster_mode
 @_pruned_to_fit
 @_residual_auto
 @_feature_bits
 def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, *,
                  fit_curves: bool = False, callback: Callback | None = None, curves_info: dict | None = None,
-                 chosen_bits: bool = False, residual: int | None = None, default_target: bool = False):
+                 chosen_bits: bool = False, residual: int | None = None, default_target: bool = False,
+                 raster_bytes: int | None = None):
     """Encode a raster with its discontinuity curves.
 
     Without a mesh-size setting, a small image gets at most one triangle per ``dfc.rate.PIXELS_PER_TRIANGLE`` pixels
@@ -338,6 +397,11 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
         header's ``encoder`` record; the residual then also gets what the field leaves of its share
     prune_to_fit : a byte target too small for every curve leaves out those that earn the least
         (``_pruned_to_fit``; ``report.pruned_curves``) instead of raising ``TargetBytesError``
+    raster_mode : a clean image under ``--residual-bytes auto`` may be stored in the raster mode, a constant field
+        and a residual raster, when that file decodes closer to the input at the same size (``_raster_mode``;
+        ``report.raster_mode``); False: never
+    raster_bytes : make the raster mode's file in this many bytes: the field's rows set to one vector, the residual
+        given what the field leaves (``_raster_mode`` calls it so, with settings for its field)
 
     The pixel filter (``settings.pixel_filter``; "auto": ``dfc.pixel_model.detect`` on the pixels near the curves)
     is fitted (``dfc.train.fit.fit_image``) and stored in the header (``pixel_filter``).
@@ -369,6 +433,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
                              f"{settings.target_bytes} for the field")
         asked = {"target_bytes": settings.target_bytes, **({"default_target": True} if default_target else {})}
         settings = replace(settings, target_bytes=settings.target_bytes - n_residual)
+    if raster_bytes:
+        asked = {"target_bytes": raster_bytes, "raster_mode": True}
     channels = getattr(image, "channels", None) or default_channels(c)
     curves = check_domain(curves, w, h, fit_curves)
     scale = quality_scale(pixels)
@@ -408,7 +474,12 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
     seconds["mesh_s"] += sizing_s
     seconds = {"detect_s": detect_s, **seconds}
     clock = time.perf_counter()
-    flat_rows = _snap_flat(model, fitted, curves.domain, settings, fit_scale.data_range, mixed(model), size_of)
+    if raster_bytes:
+        from .train.flat import constant_rows
+
+        flat_rows = constant_rows(model)
+    else:
+        flat_rows = _snap_flat(model, fitted, curves.domain, settings, fit_scale.data_range, mixed(model), size_of)
     seconds["flat_s"] = time.perf_counter() - clock
     rendered = []  # the written file's 1x render, which the residual completes
 
@@ -418,6 +489,8 @@ def encode_image(image, curves: Curves, settings: EncodeSettings | None = None, 
 
     blob, report = _finish(model, settings, info, seconds, w * h, truth, scale,
                            pixel_size=(1.0, 1.0), value_map=value_map, units=units, pixel_filter=stored)
+    if raster_bytes:
+        n_residual = raster_bytes - len(blob)
     if n_residual:
         if default_target:  # no fill round: the residual takes what the field left of its share too
             n_residual += max(0, settings.target_bytes - len(blob))

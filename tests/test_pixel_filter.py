@@ -175,9 +175,9 @@ def test_detect_without_evidence_falls_back_to_box(scene):
 def test_auto_encode_equals_the_true_model_and_beats_box(scene, rasters, generation):
     settings = EncodeSettings(steps=120, batch_size=4096)
     raster = rasters[generation]
-    blob, auto = encode_image(raster, scene.curves, replace(settings, pixel_filter="auto"))
-    told_blob, told = encode_image(raster, scene.curves, replace(settings, pixel_filter=generation))
-    _, box = encode_image(raster, scene.curves, replace(settings, pixel_filter="box"))
+    blob, auto = encode_image(raster, scene.curves, replace(settings, pixel_filter="auto"), raster_mode=False)
+    told_blob, told = encode_image(raster, scene.curves, replace(settings, pixel_filter=generation), raster_mode=False)
+    _, box = encode_image(raster, scene.curves, replace(settings, pixel_filter="box"), raster_mode=False)  # the field
     assert auto.pixel_filter == generation and generation in auto.pixel_evidence
     assert abs(auto.psnr - told.psnr) <= 0.5
     assert auto.psnr > box.psnr + 5.0

@@ -265,14 +265,14 @@ def test_a_byte_target_too_small_for_the_default_feature_bits_falls_back_to_fewe
     assert at8 < at10
     target = (at8 + at10) // 2
     settings = EncodeSettings(target_bytes=target, steps=5, batch_size=1024, refine=0)
-    blob, report = encode_image(image, scene.curves, settings, fit_curves=True)
+    blob, report = encode_image(image, scene.curves, settings, fit_curves=True, raster_mode=False)  # the field's
     assert report.feature_bits == 8 and report.fallback_from == DEFAULT_FEATURE_BITS and len(blob) <= target
     path = tmp_path / "small.dfield"
     path.write_bytes(blob)
     assert read_dfield_info(path)["features"]["bits"] == 8  # the file stores what the report says
     with pytest.raises(TargetBytesError, match="fewer --feature-bits than 10"):  # bits the caller chose are kept
         encode_image(image, scene.curves, EncodeSettings(target_bytes=target, feature_bits=10, steps=5),
-                     fit_curves=True)
+                     fit_curves=True, raster_mode=False)
     _, default = encode_image(image, scene.curves, EncodeSettings(max_triangles=200, steps=5, batch_size=1024),
                               fit_curves=True)
     assert default.feature_bits == DEFAULT_FEATURE_BITS  # no byte target: the default bits

@@ -265,7 +265,8 @@ def shapes_64():
 
 def test_auto_stores_a_residual_for_a_clean_image_under_a_target(shapes_64):
     raster, curves = shapes_64
-    blob, report = encode_image(raster, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=4000))
+    blob, report = encode_image(raster, curves, EncodeSettings(steps=60, batch_size=2048, target_bytes=4000),
+                                raster_mode=False)  # the residual's share, not the raster mode (test_raster_mode)
     assert len(blob) <= 4000 and 0 < report.chunk_bytes["rESD"] <= 2000
     assert "residual_bytes" not in loads(blob).header["encoder"]  # auto is the default: not recorded
     no_target, _ = encode_image(raster, curves, EncodeSettings(steps=60, batch_size=2048, max_triangles=200))
@@ -286,7 +287,7 @@ def test_auto_falls_back_to_the_field_alone_when_the_field_cannot_fit_its_share(
     assert smallest is not None
     with pytest.raises(InputError, match="too small"):  # the field gets half: it does not fit
         encode_image(raster, curves, replace(settings, target_bytes=smallest, residual_bytes=smallest // 2))
-    blob, report = encode_image(raster, curves, replace(settings, target_bytes=smallest))  # auto
+    blob, report = encode_image(raster, curves, replace(settings, target_bytes=smallest), raster_mode=False)  # auto
     assert len(blob) <= smallest and "rESD" not in report.chunk_bytes
 
 
@@ -296,7 +297,7 @@ def test_auto_gives_the_residual_what_the_field_s_cap_leaves_when_the_field_fits
     field = len(encode_image(raster, curves, replace(settings, max_triangles=80, target_bytes=None))[0])
     monkeypatch.setattr(dfc.rate, "RESIDUAL_FIELD_BPP", (field + 200) * 8 / (64 * 64))  # a cap the field fits
     target = 2 * field + 1200  # the plain share would leave the field more than its cap
-    blob, report = encode_image(raster, curves, replace(settings, target_bytes=target))
+    blob, report = encode_image(raster, curves, replace(settings, target_bytes=target), raster_mode=False)
     assert len(blob) <= target and report.chunk_bytes["rESD"] > target - (field + 200) - 400
     assert report.chunk_bytes["rESD"] > round(RESIDUAL_SHARE * target)
 
@@ -304,7 +305,7 @@ def test_auto_gives_the_residual_what_the_field_s_cap_leaves_when_the_field_fits
 def test_without_a_target_a_clean_image_shares_its_default_mesh_s_bytes_with_a_residual(shapes_64):
     raster, curves = shapes_64
     settings = EncodeSettings(steps=40, batch_size=2048)
-    blob, report = encode_image(raster, curves, settings)
+    blob, report = encode_image(raster, curves, settings, raster_mode=False)
     assert report.default_target is not None and len(blob) <= report.default_target
     assert report.chunk_bytes["rESD"] >= RESIDUAL_MIN_BYTES and decode_dfield(blob).residual is not None
     info = loads(blob).header["encoder"]
@@ -324,7 +325,7 @@ def test_without_a_target_a_mesh_size_or_curves_too_costly_for_a_share_keep_the_
     assert report.default_target is None and decode_dfield(sized).residual is None
     alone = encode_image(raster, curves, replace(settings, residual_bytes=0))[1]
     monkeypatch.setattr(dfc.codec, "smallest_bytes", lambda *a, **k: 1 << 30)  # no share leaves the field enough
-    blob, report = encode_image(raster, curves, settings)
+    blob, report = encode_image(raster, curves, settings, raster_mode=False)
     assert report.default_target is None and decode_dfield(blob).residual is None
     fields = {k: v for k, v in report.chunk_bytes.items() if k != "HEAC"}  # the header records residual_bytes 0
     assert fields == {k: v for k, v in alone.chunk_bytes.items() if k != "HEAC"} and report.psnr == alone.psnr

@@ -6,11 +6,13 @@ takes float input (linear values, HDR included) or 16-bit integers; AVIF 10- or 
 in libavif's default YUV and, 4:4:4, with the identity matrix: the RGB planes coded as they are, which decode
 exactly and win at high rates on clean content); WebP 8-bit (SDR input only); JPEG 2000 16-bit. Integer samples
 come from a *transfer*: ``identity`` for SDR input (values in [0, 1] scaled to the code range), ``linear`` (the
-values' [min, max] mapped onto the code range) or ``log`` (log of the values plus 1e-4 of their maximum, for
-non-negative HDR input); the two numbers a non-identity transfer needs are counted as ``SIDE_BYTES``. For each configuration the quality is found by bisection: the highest quality whose
-stream fits the budget; JPEG XL's and WebP's lossless streams are tried too. Of the configurations, the stream with
-the best 1× PSNR on the training raster is kept, measured on the input's ``dfc.metrics.quality_scale`` (tone-mapped
-for HDR colours), as every PSNR of the comparison.
+values' [min, max] mapped onto the code range), ``log`` (log of the values plus 1e-4 of their maximum, for
+non-negative HDR input) or ``tonemap`` (HDR input: ``v / (1 + |v|)``, the space its PSNR is measured in and a
+dfc residual raster is coded in, ``dfc.field.residual.tone_map``, its [min, max] mapped onto the code range); the two
+numbers a non-identity transfer needs are counted as ``SIDE_BYTES``. For each configuration the quality is found
+by bisection: the highest quality whose stream fits the budget; JPEG XL's and WebP's lossless streams are tried
+too. Of the configurations, the stream with the best 1× PSNR on the training raster is kept, measured on the input's
+``dfc.metrics.quality_scale`` (tone-mapped for HDR colours), as every PSNR of the comparison.
 
 Two codecs cannot always spend the budget. AVIF's quality has 64 steps (libavif's quantisers), which at high rates
 are 30–50 % apart in size: its stream may stay well below the budget, and ``Coded.next_bytes`` records the size of
@@ -32,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..field.residual import TONE_LIMIT, tone_map
 from ..io.residual import GAIN_FILL, largest_gain
 from ..metrics import QualityScale
 
@@ -70,7 +73,7 @@ def _transfers(pixels: np.ndarray) -> list[str]:
     lo, hi = float(pixels.min()), float(pixels.max())
     if lo >= 0.0 and hi <= 1.0:
         return ["identity"]
-    return ["linear", "log"] if lo >= 0.0 else ["linear"]
+    return ["linear", "log", "tonemap"] if lo >= 0.0 else ["linear", "tonemap"]
 
 
 def _forward(values: np.ndarray, transfer: str, lo: float, hi: float) -> np.ndarray:
@@ -79,6 +82,9 @@ def _forward(values: np.ndarray, transfer: str, lo: float, hi: float) -> np.ndar
         return np.clip(values, 0.0, 1.0)
     if transfer == "linear":
         return (values - lo) / max(hi - lo, 1e-30)
+    if transfer == "tonemap":
+        a, b = tone_map(lo), tone_map(hi)
+        return (tone_map(values) - a) / max(b - a, 1e-30)
     eps = LOG_EPS * max(hi, 1e-30)
     a, b = np.log(lo + eps), np.log(hi + eps)
     return (np.log(np.maximum(values, 0.0) + eps) - a) / max(b - a, 1e-30)
@@ -89,6 +95,9 @@ def _inverse(unit: np.ndarray, transfer: str, lo: float, hi: float) -> np.ndarra
         return unit
     if transfer == "linear":
         return lo + unit * (hi - lo)
+    if transfer == "tonemap":
+        t = np.clip(tone_map(lo) + unit * (tone_map(hi) - tone_map(lo)), -TONE_LIMIT, TONE_LIMIT)
+        return t / (1.0 - np.abs(t))
     eps = LOG_EPS * max(hi, 1e-30)
     a, b = np.log(lo + eps), np.log(hi + eps)
     return np.exp(a + unit * (b - a)) - eps
@@ -192,7 +201,8 @@ def encode(codec: str, pixels: np.ndarray, config: dict, q) -> bytes:
 
 def stream_bytes(stream: bytes, config: dict) -> int:
     """Bytes a stream costs: its length, plus ``SIDE_BYTES`` for a non-identity integer transfer or a gain."""
-    return len(stream) + (SIDE_BYTES if config["transfer"] in ("linear", "log") or "gain" in config else 0)
+    return len(stream) + (SIDE_BYTES if config["transfer"] in ("linear", "log", "tonemap") or "gain" in config
+                          else 0)
 
 
 def decode(codec: str, stream: bytes, config: dict, channels: int, value_range: tuple[float, float]) -> np.ndarray:

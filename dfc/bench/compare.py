@@ -119,6 +119,8 @@ class BenchSettings:
         input's pixels per axis (module notes); 0: not measured
     residual_share : in [0, 1): the share of ``target_bytes`` dfc's encode gives a residual raster
         (``EncodeSettings.residual_bytes``; 0: none); None: the encoder's default ("auto")
+    raster_mode : dfc's encode may store a clean image in the raster mode (``dfc.codec.encode_image``'s
+        ``raster_mode``, as ``dfc encode`` does by default)
     """
 
     steps: int = IMAGE_STEPS
@@ -143,6 +145,7 @@ class BenchSettings:
     pixel_filter: str = "auto"
     super_resolution: int = SUPER_RESOLUTION
     residual_share: float | None = None
+    raster_mode: bool = True
 
     def check(self, budgeted: bool = False) -> None:
         """Raise InputError on inconsistent settings (``budgeted``: an RD sweep will set ``target_bytes``)."""
@@ -261,7 +264,8 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
                 why = getattr(done, "warning", None)
                 progress(f"dfc: curves {what}: {done.summary()}" + (f" ({why})" if why else ""))
     blob, report = encode_image(image, curves, enc, fit_curves=True, callback=callback,
-                                prune_to_fit=settings.prune_curves and curves.source != "auto")
+                                prune_to_fit=settings.prune_curves and curves.source != "auto",
+                                raster_mode=settings.raster_mode)
     if report.pruned_curves:
         progress(f"dfc: curves pruned to fit the budget: {report.pruned_curves['dropped']} of "
                  f"{report.pruned_curves['curves']} left out")
@@ -272,7 +276,12 @@ def _fit_dfc(pixels, curves, channels, settings: BenchSettings, progress) -> tup
                "chunk_bytes": report.chunk_bytes, "psnr_at_pixels": report.psnr, "encode_s": report.seconds,
                **({"pruned_curves": pruned.to_dict()} if pruned is not None else {}),
                **({"pruned_curves": report.pruned_curves} if report.pruned_curves else {}),
-               **({"refined_curves": refined.to_dict()} if refined is not None else {})}
+               **({"refined_curves": refined.to_dict()} if refined is not None else {}),
+               **({"raster_mode": {"field_psnr": report.field_psnr}} if report.raster_mode else {})}
+    if report.raster_mode:
+        progress("dfc: raster mode (a constant field and a residual raster holding the image): "
+                 + ("the field did not fit" if report.field_psnr is None else
+                    f"{report.psnr:.2f} dB against the field's {report.field_psnr:.2f}"))
     return _Remap(model, curves.domain, (0.0, 0.0, float(w), float(h)), (w, h)), len(blob), {"blob": blob, **details}
 
 

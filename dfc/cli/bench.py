@@ -87,6 +87,9 @@ def _budgets(ctx, param, value):
 @click.option("--residual-share", type=click.FloatRange(0.0, 1.0, max_open=True), default=None, metavar="F",
               help="dfc at a byte budget: give this share of it to a residual raster (dfc encode --residual-bytes); "
                    "0: none  [default: the encoder's, --residual-bytes auto].")
+@click.option("--raster-mode/--no-raster-mode", "raster_mode", default=True, show_default=True,
+              help="dfc may store a clean image as a constant field and a residual raster when that decodes closer "
+                   "at 1x, as dfc encode does (dfc encode --no-raster-mode).")
 @click.option("--corpus-own-rate", is_flag=True,
               help="--corpus: also encode dfc without a byte target (the default encode) and measure every codec at "
                    "that file's size, at 1x.")
@@ -140,7 +143,8 @@ def _budgets(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, solve_path, corpus, corpus_cases,
-            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, residual_share, corpus_own_rate,
+            corpus_data, corpus_bpp, corpus_jobs, prune_curves, refine_curves, residual_share, raster_mode,
+            corpus_own_rate,
             super_resolution, list_scenes, probes, output, zooms, methods, target_bytes, rd, budgets, steps,
             sweep, sweep_steps, match_time, pixel_grid, batch_size, size, render, spp, max_triangles, seed, device,
             fit_curves_to_image, json_path, quiet):
@@ -187,7 +191,7 @@ def command(input_path, curves_path, scene, scene_spp, scene_filter, sensor, sol
         return {"steps": steps or BenchSettings.steps, "batch_size": batch_size or 1 << 14, "spp": spp,
                 "zooms": tuple(zooms) or ZOOMS, "max_triangles": max_triangles, "seed": seed,
                 "device": check_device(device), "pixel_grid": pixel_grid, "super_resolution": super_resolution,
-                "residual_share": residual_share}
+                "residual_share": residual_share, "raster_mode": raster_mode}
 
     if corpus:
         if any(v is not None for v in (input_path, curves_path, scene, solve_path, target_bytes, budgets)) or rd \

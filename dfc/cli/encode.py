@@ -145,6 +145,11 @@ def _curves_arg(ctx, param, value):
                    "forces; fewer under a smaller --target-bytes; dfc.geometry.sources.prune)  [default: on with "
                    "--curves auto; with a curves file, on only when --target-bytes is too small for all of them]. "
                    "--no-prune-curves refuses such a target.")
+@click.option("--raster-mode/--no-raster-mode", "raster_mode", default=True, show_default=True,
+              help="Clean image read whole, --residual-bytes auto, with --target-bytes or no mesh-size option: "
+                   "also make the file as a constant field and a residual raster holding the image, at the same "
+                   "size, and keep it when it decodes closer to the input (content the field does not model: test "
+                   "charts, textures). Such a file stores no curves: zooms interpolate its raster.")
 @click.option("--device", default=FitSettings.device, show_default=True,
               help="torch device for the fit (cpu, cuda, cuda:1, ...).")
 @threads_option
@@ -168,7 +173,7 @@ def _curves_arg(ctx, param, value):
 @json_option
 @quiet_option
 def command(input_paths, curves_path, output, channels, fit_curves_to_image, times, fields, fem_sampling,
-            reference_path, refine_curves, prune_curves, json_path, quiet, **setting_options):
+            reference_path, refine_curves, prune_curves, raster_mode, json_path, quiet, **setting_options):
     """Encode INPUT with the discontinuity CURVES into OUTPUT (for an image, --curves auto finds them in it with
     dfc curves' defaults and records that, with the settings, in the file). INPUT is an EXR/PNG/JPEG image; a .npz
     sample set or frame sequence (spec/samples.md); several images with --times (a sequence); or a FEM solution, any
@@ -288,7 +293,8 @@ def command(input_paths, curves_path, output, channels, fit_curves_to_image, tim
             reference = _read_reference(reference_path, curves.domain) if reference_path else None
             blob, report = _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling,
                                              reference, curves_info, quiet,
-                                             prune_to_fit=prune_curves is None and curves_path != "auto")
+                                             prune_to_fit=prune_curves is None and curves_path != "auto",
+                                             raster_mode=raster_mode)
     if worked:  # the time line counts finding, pruning and refining the curves too
         report = replace(report, seconds={"curves_s": curves_s, **report.seconds})
     if detection is not None:  # the filter was detected along every curve found, before pruning
@@ -381,8 +387,9 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
     lines = [f"wrote {shown(output)}: {report.total_bytes} bytes, {report.bits_per_pixel:.3f} bits per {unit}"]
     if curves_info:
         lines.append(f"curves: {curves_info['curves']} curves ({curves_info['pieces']} pieces) found in the image by "
-                     "dfc curves' extractor at its defaults (recorded in the file; see them with dfc curves IMAGE "
-                     "--preview P.png)")
+                     "dfc curves' extractor at its defaults ("
+                     + ("" if report.raster_mode else "recorded in the file; ")
+                     + "see them with dfc curves IMAGE --preview P.png)")
     if pruned is not None:
         lines.append(f"curves pruned: {pruned.summary()}")
     if report.pruned_curves:
@@ -394,7 +401,13 @@ def _summary(output: str, kind: str, report, reference_path, curves_info, err: b
     if report.default_target:
         lines.append(f"no --target-bytes: a clean image gets the bytes of its default mesh ({report.default_target}) "
                      "as a target, shared with a residual raster (--residual-bytes 0 stores the field alone)")
-    if report.flat_rows:
+    if report.raster_mode:
+        lines.append("raster mode: a constant field and a residual raster holding the image decode closer to the input "
+                     "at this size than " + ("the field could fit in it" if report.field_psnr is None else
+                                            f"a fitted field's file ({report.field_psnr:.2f} dB)")
+                     + "; the file stores no curves, so zooms interpolate the raster (--no-raster-mode keeps the "
+                     "field)")
+    elif report.flat_rows:
         lines.append(f"flat regions: {report.flat_rows} feature rows share the stored vector nearest their region's "
                      "exact value")
     lines += [f"  {name}  {size:>10} bytes" for name, size in report.chunk_bytes.items()]
@@ -437,9 +450,10 @@ def _fit_callback(bar):
 
 
 def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_sampling, reference, curves_info,
-                      quiet, prune_to_fit: bool = False):
+                      quiet, prune_to_fit: bool = False, raster_mode: bool = True):
     """(blob, report) of an input read whole: an image, frames, a sample set or a FEM solution (an image's curves
-    pruned when the byte target is too small for all of them and ``prune_to_fit``, ``dfc.codec.encode_image``)."""
+    pruned when the byte target is too small for all of them and ``prune_to_fit``, and the raster mode tried unless
+    ``raster_mode`` is False: ``dfc.codec.encode_image``)."""
     from ..codec import (encode_fem, encode_frames, encode_image, encode_samples, fem_settings, refine_rounds,
                          refit_steps)
 
@@ -456,7 +470,7 @@ def _encode_in_memory(kind, signal, curves, settings, fit_curves_to_image, fem_s
         if kind == "frames":
             return encode_frames(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback)
         return encode_image(signal, curves, settings, fit_curves=fit_curves_to_image, callback=callback,
-                            curves_info=curves_info, prune_to_fit=prune_to_fit)
+                            curves_info=curves_info, prune_to_fit=prune_to_fit, raster_mode=raster_mode)
 
 
 def _gpus() -> int:

@@ -14,6 +14,9 @@ when those pixels span at most ``FLAT_TOLERANCE`` of the data range in every cha
 no point it weighs is also weighed by a row that is not flat (where a flat region meets the rest, the fit's values
 stay). Rows of equal flat values form a group with one vector. The change is kept only when the squared error at
 the pixel centres does not grow.
+
+``constant_rows`` is the whole-field case the raster mode needs (``dfc.codec``): every row one vector, the field one
+value everywhere.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ from torch.nn.utils import parametrize
 from ..field.quantize import feature_ranges, quantize_features
 from ..render import values_at, window_points
 
-__all__ = ["FLAT_TOLERANCE", "snap_flat_rows"]
+__all__ = ["FLAT_TOLERANCE", "constant_rows", "snap_flat_rows"]
 
 FLAT_TOLERANCE = 2.0**-16
 """Largest spread of a flat support's pixel values, per channel, as a share of the data range."""
@@ -206,3 +209,13 @@ def snap_flat_rows(model, pixels: np.ndarray, domain, bits: int, data_range: flo
             raw.copy_(before)
         return 0
     return int(len(changed))
+
+
+def constant_rows(model) -> int:
+    """Set every bank row of ``model`` (a one-slice ``FieldModel``) to the rows' mean, in place, so that the field
+    decodes one value everywhere, at every zoom: a feature channel that is constant over the bank is stored exactly
+    at any bits (``dfc.field.quantize.feature_ranges``). Returns the number of rows."""
+    _, raw = _bank(model)
+    with torch.no_grad():
+        raw.copy_(raw.mean(dim=1, keepdim=True).expand_as(raw))
+    return int(raw.shape[1])

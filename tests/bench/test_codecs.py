@@ -52,14 +52,28 @@ def test_every_configuration_decodes_to_the_input_shape_and_range(codec, sdr):
 def test_hdr_input_keeps_its_range(codec, hdr):
     span = data_range(hdr)
     configs = configurations(codec, hdr)
-    assert {c["transfer"] for c in configs} >= {"linear", "log"}
+    assert {c["transfer"] for c in configs} >= {"linear", "log", "tonemap"}
     for config in configs:
         stream, out = _roundtrip(codec, hdr, config)
         assert out.shape == hdr.shape
         assert out.min() >= hdr.min() - 0.02 * span and out.max() <= hdr.max() + 0.02 * span
-        assert psnr(hdr, out, data_range=span) > 30, config
+        if config["transfer"] == "tonemap":  # its codes spread evenly over the tone map, where PSNR is measured
+            assert quality_scale(hdr).psnr(hdr, out) > 30, config
+        else:
+            assert psnr(hdr, out, data_range=span) > 30, config
         if config["input"] == "uint":
             assert stream_bytes(stream, config) == len(stream) + codecs.SIDE_BYTES
+
+
+def test_the_tonemap_transfer_spans_the_code_range_and_inverts(hdr):
+    lo, hi = float(hdr.min()), float(hdr.max())
+    unit = codecs._forward(hdr.astype(np.float64), "tonemap", lo, hi)
+    assert unit.min() == pytest.approx(0.0, abs=1e-12) and unit.max() == pytest.approx(1.0, abs=1e-12)
+    back = codecs._inverse(unit, "tonemap", lo, hi)
+    assert np.allclose(back, hdr, rtol=1e-9, atol=1e-9)
+    coarse = codecs._inverse(np.round(unit * 4095) / 4095, "tonemap", lo, hi)  # 12-bit samples: uniform steps of
+    t, t_coarse = hdr / (1 + np.abs(hdr)), coarse / (1 + np.abs(coarse))  # the tone map, where PSNR is measured
+    assert np.abs(t_coarse - t).max() <= 0.5 / 4095 * (hi / (1 + hi) - lo / (1 + lo)) + 1e-9
 
 
 def test_avif_tries_colour_images_with_the_identity_matrix_too(sdr):

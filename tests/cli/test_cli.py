@@ -94,7 +94,8 @@ def test_encode_says_when_it_sets_a_byte_target_itself(tmp_path, capsys):
     image, curves, out = tmp_path / "shapes.exr", tmp_path / "shapes.json", tmp_path / "shapes.dfield"
     write_exr(image, filtered_raster(scene, 64, 64, "box:4"), ["R", "G", "B"], half=False)
     write_json(scene.curves, curves)
-    base = ["encode", image, "--curves", curves, "--fit-curves-to-image", "-o", out, "--steps", "40"]
+    base = ["encode", image, "--curves", curves, "--fit-curves-to-image", "-o", out, "--steps", "40",
+            "--no-raster-mode"]  # forty steps: the raster mode's file would win (tests/test_raster_mode.py)
     code, text, err = run(base, capsys)
     assert code == 0, err
     assert "no --target-bytes: a clean image gets the bytes of its default mesh" in text and "rESD" in text

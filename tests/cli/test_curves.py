@@ -86,7 +86,7 @@ def test_encode_with_auto_curves_records_the_extraction(disc_exr, tmp_path, caps
 
     out = tmp_path / "disc.dfield"
     code, stdout, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
-                             "--json", tmp_path / "s.json"], capsys)
+                             "--no-raster-mode", "--json", tmp_path / "s.json"], capsys)  # the field's file
     assert code == 0, err
     expected, used, detection = image_curves_filtered(read_image(disc_exr).pixels)  # the encoder's filter detection
     record = file_stats(out)["encoder"]
@@ -117,7 +117,7 @@ def test_encode_fits_the_filter_detected_again_along_the_refined_curves(disc_exr
     monkeypatch.setattr(auto, "refine_detected", lambda *a: replace(real(*a), pixel_filter=other))
     out = tmp_path / "disc.dfield"
     code, _, err = run(["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "4", "--batch-size", "256",
-                        "--json", tmp_path / "s.json"], capsys)
+                        "--no-raster-mode", "--json", tmp_path / "s.json"], capsys)
     assert code == 0, err
     record = file_stats(out)["encoder"]
     assert record["pixel_filter"] == record["curves"]["pixel_filter"] == other
@@ -186,7 +186,8 @@ def test_encode_with_auto_curves_refines_them_by_default(disc_exr, tmp_path, cap
     from dfc.cli.stats import file_stats
 
     out = tmp_path / "disc.dfield"
-    args = ["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "2", "--batch-size", "256"]
+    args = ["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "2", "--batch-size", "256",
+            "--no-raster-mode"]  # two steps: the raster mode's file would win, and it stores no curves
     code, stdout, err = run(args, capsys)
     assert code == 0, err
     assert "curves refined against the pixels" in stdout
@@ -258,7 +259,7 @@ def test_encode_with_auto_curves_prunes_them_by_default(disc_exr, tmp_path, caps
     out = tmp_path / "disc.dfield"
     summary = tmp_path / "summary.json"
     args = ["encode", disc_exr, "--curves", "auto", "-o", out, "--steps", "2", "--batch-size", "256",
-            "--no-refine-curves", "--json", summary]
+            "--no-refine-curves", "--no-raster-mode", "--json", summary]
     code, stdout, err = run(args, capsys)
     assert code == 0, err
     assert "curves pruned: 0 of 1 curves dropped" in stdout
