@@ -201,8 +201,7 @@ def encode(codec: str, pixels: np.ndarray, config: dict, q) -> bytes:
 
 def stream_bytes(stream: bytes, config: dict) -> int:
     """Bytes a stream costs: its length, plus ``SIDE_BYTES`` for a non-identity integer transfer or a gain."""
-    return len(stream) + (SIDE_BYTES if config["transfer"] in ("linear", "log", "tonemap") or "gain" in config
-                          else 0)
+    return len(stream) + (SIDE_BYTES if config["transfer"] not in ("identity", "none") or "gain" in config else 0)
 
 
 def decode(codec: str, stream: bytes, config: dict, channels: int, value_range: tuple[float, float]) -> np.ndarray:
